@@ -1,0 +1,28 @@
+// Fixed-size Eigen aliases and the small value types shared by the whole core.
+#pragma once
+
+#include <cstdint>
+
+#include <Eigen/Dense>
+
+namespace deif {
+
+using Vector2 = Eigen::Vector2d;       // a position or displacement in the plane [m]
+using Matrix2 = Eigen::Matrix2d;
+using RowVector2 = Eigen::RowVector2d;  // the Jacobian of a scalar measurement w.r.t. position
+
+// The information contribution of one sensor lives in the position sub-space: a range
+// depends on the target position only, so for any motion model the velocity block of
+// I_j and i_j is zero (eqs 4.49-4.50 with H = [dh/dp, 0]).
+using InfoVector = Eigen::Vector2d;  // i_j
+using InfoMatrix = Eigen::Matrix2d;  // I_j
+
+// The filter state is 2-D for the random walk (eq 5.1) and 4-D [p; v] for the
+// constant-velocity model, chosen at run time, so its size really varies.
+using StateVector = Eigen::VectorXd;
+using StateMatrix = Eigen::MatrixXd;
+
+using AgentId = int;
+using StepIndex = std::int64_t;
+
+}  // namespace deif
