@@ -1,0 +1,1 @@
+#include "common/agent_core.hpp"
