@@ -24,6 +24,8 @@ class Fault:
     step: int
     action: str  # kill | stop | cont | restart_target
     agent: int = -1
+    applied_unix_s: float = None  # wall-clock time the launcher applied it
+    applied_at_step: int = None
 
     @staticmethod
     def parse(text, action):
@@ -310,6 +312,8 @@ class Launcher:
         return int(row["step"]) if row else 0
 
     def _apply(self, fault):
+        fault.applied_unix_s = time.time()
+        fault.applied_at_step = self.current_step()
         if fault.action == "restart_target":
             t = self.procs["target"]
             if t.popen.poll() is None:
