@@ -5,6 +5,7 @@
 //   control law on the members' positions p(k-1) about its own estimate x(k|k).
 #include "common/simulation.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -40,7 +41,6 @@ struct Artefacts {
 }  // namespace
 
 SimulationMetrics RunSimulation(const Config& config, const std::string& out_dir) {
-  const double dt_s = config.scenario.dt_s;
   TargetCore target(config);
 
   std::map<AgentId, SimAgent> agents;  // ordered: every loop runs in ascending id
