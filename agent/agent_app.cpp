@@ -81,16 +81,18 @@ int AgentApp::run() {
 
   AgentSnapshot initial = core_.Initial();
   initial.alive = static_cast<int>(Members().size());
-  Publish(initial);
+  Publish(initial, /*write_csv=*/false);  // the CSV holds steps 1..steps, like the simulation
   log_->info("published the initial state; waiting for the target");
 
   while (!stop_requested_ && done_ < config_.scenario.steps) {
     auto next = WaitForNextStep();
     if (!next) break;
     const auto& [k, z] = *next;
-    // After an outage or a restart the target may be ahead: predict through every step
-    // missed (no range, no contribution) so that time stays consistent.
-    for (StepIndex missed = done_ + 1; missed < k; ++missed) DoStep(missed, std::nullopt);
+    // After an outage, a SIGSTOP or a restart the target may be ahead: predict once per
+    // step missed (eqs 4.45-4.46; no range, no contribution, no fusion, no motion), as the
+    // in-process simulation does for an agent that takes no part in a step.
+    for (StepIndex missed = done_ + 1; missed < k; ++missed) core_.BeginStep(missed, std::nullopt);
+    if (k > done_ + 1) log_->warn("skipped steps {}..{} (prediction only)", done_ + 1, k - 1);
     DoStep(k, z);
   }
 
@@ -159,7 +161,8 @@ void AgentApp::DoStep(StepIndex k, const std::optional<RangeObservation>& z) {
   // First half: predict and compute our own (i_j, I_j) (eqs 4.45-4.46, 4.49-4.51).
   std::optional<Contribution> own = core_.BeginStep(k, z);
   if (own) {
-    contribution_writer_->write(const_cast<deif_msgs::Contribution*>(&static_cast<const deif_msgs::Contribution&>(ToIdl(*own))));
+    deif_msgs::Contribution msg = ToIdl(*own);
+    contribution_writer_->write(&msg);
     held_[k][options_.id] = *own;
   }
 
@@ -192,12 +195,14 @@ void AgentApp::DoStep(StepIndex k, const std::optional<RangeObservation>& z) {
   held_.erase(held_.begin(), held_.upper_bound(k));
   done_ = k;
   active_step_ = k + 1;
-  Publish(snapshot);
+  Publish(snapshot, /*write_csv=*/true);
 }
 
 bool AgentApp::HoldsEverythingFor(StepIndex k) const {
   // An alive contribution writer whose id we do not know yet has not sent anything: wait.
-  // (Only writers are counted, so ours and ignored ones are excluded.)
+  for (const auto& writer : contribution_writers_.AliveUnknown()) {
+    if (ignored_writers_.count(writer) == 0) return false;
+  }
   for (AgentId m : Members()) {
     if (m == options_.id) continue;
     auto held = held_.find(k);
@@ -209,15 +214,19 @@ bool AgentApp::HoldsEverythingFor(StepIndex k) const {
 }
 
 std::map<AgentId, Vector2> AgentApp::MemberPositions(StepIndex k, const std::vector<Contribution>& fused) const {
+  // The ring of this step: every alive member and every agent fused, each at its position
+  // of step k-1 (the one its range was measured from).
+  std::set<AgentId> ids = Members();
+  for (const auto& c : fused) ids.insert(c.agent_id);
   std::map<AgentId, Vector2> positions;
   positions[options_.id] = core_.position();  // our position at k-1
-  for (const auto& c : fused) {
-    if (c.agent_id == options_.id) continue;
-    auto it = positions_.find(c.agent_id);
+  for (AgentId id : ids) {
+    if (id == options_.id) continue;
+    auto it = positions_.find(id);
     if (it == positions_.end()) continue;
     auto at = it->second.upper_bound(k - 1);  // the latest position at or before k-1
     if (at == it->second.begin()) continue;
-    positions[c.agent_id] = std::prev(at)->second;
+    positions[id] = std::prev(at)->second;
   }
   return positions;
 }
@@ -228,10 +237,10 @@ std::set<AgentId> AgentApp::Members() const {
   return members;
 }
 
-void AgentApp::Publish(const AgentSnapshot& snapshot) {
+void AgentApp::Publish(const AgentSnapshot& snapshot, bool write_csv) {
   deif_msgs::AgentState msg = ToIdl(snapshot, options_.id, instance_token_);
   state_writer_->write(&msg);
-  if (csv_) {
+  if (csv_ && write_csv) {
     AgentRow row;
     row.step = snapshot.step;
     row.t_s = static_cast<double>(snapshot.step) * config_.scenario.dt_s;

@@ -74,7 +74,7 @@ class AgentApp {
   bool HoldsEverythingFor(StepIndex k) const;
   std::map<AgentId, Vector2> MemberPositions(StepIndex k, const std::vector<Contribution>& fused) const;
   std::set<AgentId> Members() const;  // alive members, this agent included
-  void Publish(const AgentSnapshot& snapshot);
+  void Publish(const AgentSnapshot& snapshot, bool write_csv);
   void Reject(AgentId peer, const std::string& reason);
   void Drop(AgentId peer, const std::string& reason);
   bool ValidPeerId(AgentId id) const;

@@ -10,6 +10,7 @@
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <spdlog/sinks/basic_file_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include "deifPubSubTypes.h"
 
@@ -217,10 +218,12 @@ std::set<AgentId> WriterTracker::AliveIds() const {
   return out;
 }
 
-int WriterTracker::AliveUnknownCount() const {
-  int count = 0;
-  for (const auto& writer : alive_) count += ids_.count(writer) == 0 ? 1 : 0;
-  return count;
+std::set<WriterKey> WriterTracker::AliveUnknown() const {
+  std::set<WriterKey> out;
+  for (const auto& writer : alive_) {
+    if (ids_.count(writer) == 0) out.insert(writer);
+  }
+  return out;
 }
 
 std::optional<Clock::time_point> WriterTracker::LastSampleOf(AgentId id) const {

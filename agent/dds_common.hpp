@@ -153,7 +153,7 @@ class WriterTracker {
   // Ids of alive writers whose id is known.
   std::set<AgentId> AliveIds() const;
   // Alive writers that have not sent a sample yet (id unknown).
-  int AliveUnknownCount() const;
+  std::set<WriterKey> AliveUnknown() const;
   // When the last sample of an agent id arrived.
   std::optional<Clock::time_point> LastSampleOf(AgentId id) const;
 

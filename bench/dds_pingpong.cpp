@@ -24,6 +24,7 @@
 #include <mutex>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -163,7 +164,7 @@ int Run(const Options& opt) {
       fdds::StatusMask::publication_matched());
   fdds::DataReader* reader = subscriber->create_datareader(
       in_topic, deif::dds::ContributionReaderQos(network), &reader_listener,
-      fdds::StatusMask::data_available() | fdds::StatusMask::subscription_matched());
+      fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
   if (writer == nullptr || reader == nullptr) throw std::runtime_error("cannot create entities");
 
   const Clock::time_point give_up = Clock::now() + std::chrono::duration_cast<Clock::duration>(

@@ -30,6 +30,10 @@ std::string FormatDoubleShort(double value) {
   if (std::isinf(value)) return value > 0 ? ".inf" : "-.inf";
   if (std::isnan(value)) return ".nan";
   char buffer[40];
+  if (value == std::floor(value) && std::abs(value) < 1e15) {
+    std::snprintf(buffer, sizeof(buffer), "%.0f", value);  // 30, not 3e+01
+    return buffer;
+  }
   for (int precision = 1; precision <= 17; ++precision) {
     std::snprintf(buffer, sizeof(buffer), "%.*g", precision, value);
     if (std::strtod(buffer, nullptr) == value) break;
@@ -272,9 +276,10 @@ class Section {
   }
 
   bool Has(const std::string& name) const {
-    return node_.IsMap() && node_[name].IsDefined();
+    return node_.IsDefined() && node_.IsMap() && node_[name].IsDefined();
   }
-  YAML::Node Get(const std::string& name) const { return node_[name]; }
+  // The value of a key, or a null node when it is absent.
+  YAML::Node Get(const std::string& name) const { return Has(name) ? node_[name] : YAML::Node(); }
   std::string Key(const std::string& name) const {
     return path_.empty() ? name : path_ + "." + name;
   }
@@ -733,7 +738,6 @@ std::string YamlQuoted(const std::string& text) {
 std::string ToYaml(const Config& config) {
   std::ostringstream y;
   const auto d = [](double v) { return FormatDoubleShort(v); };
-  if (!config.source.empty()) y << "# source: " << config.source << "\n";
   y << "scenario:\n"
     << "  name: " << YamlQuoted(config.scenario.name) << "\n"
     << "  seed: " << config.scenario.seed << "\n"

@@ -26,6 +26,7 @@ Matrix2 FisherInformation(const std::vector<SensorGeometry>& sensors, const Vect
 //   1/2 sum_{i,j} |v_i|^2 |v_j|^2 sin^2(alpha_ij) = det(G^T G),
 // divided by sigma^4. (The thesis writes 1/(2 sigma^2); det(G^T G / sigma^2) in 2-D is
 // det(G^T G) / sigma^4, and that is what this returns so that it equals det of eq (2.2).)
+// sigma^2 is taken from the FIRST sensor; the result is 0 for no sensors.
 double DetFisherClosedForm(const std::vector<SensorGeometry>& sensors, const Vector2& p_target,
                            const SensingFunction& sensing);
 

@@ -69,7 +69,8 @@ struct SensingFunction {
   double r1_m = std::numeric_limits<double>::infinity();
   double beta = 1.0;
 
-  // f(r); when df_dr is given, also f'(r) (0 outside (R0, R1)).
+  // f(r); when df_dr is given, also f'(r) (0 outside (R0, R1)). When R0^beta is infinite
+  // (beta < 0 with R0 = 0) no c1 makes f continuous at R0, and c1 = c0 is used.
   double Evaluate(double r_m, double* df_dr = nullptr) const;
   bool InRange(double r_m) const { return r_m > r0_m && r_m < r1_m; }
 };

@@ -77,7 +77,7 @@ TEST_CASE("EIF equals EKF on the same data with the random walk model", "[filter
   MotionModel model;
   model.kind = MotionModelKind::kRandomWalk;
   model.dt_s = 0.1;
-  model.process_noise = 1e-3;
+  model.process_noise = 1e-2;
   for (const unsigned seed : {1u, 2u, 3u}) {
     CheckEifEqualsEkf(model, Vector2(0.3, -0.2), 0.5 * Eigen::Matrix2d::Identity(), seed);
   }
