@@ -21,7 +21,7 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, os.path.join(ROOT, "scripts", "lib"))
 import deifrun  # noqa: E402
 
-DEFAULT = os.path.join(ROOT, "configs", "default.yaml")
+DEFAULT = os.path.join(HERE, "configs", "slow_circle.yaml")
 DEG = math.pi / 180.0
 
 
