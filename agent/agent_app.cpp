@@ -101,10 +101,16 @@ int AgentApp::run() {
   } else {
     log_->info("run over after step {} (rejected {}, dropped {})", done_, rejected_, dropped_);
   }
-  // Let reliable peers receive our last samples before the writers go away.
-  const eprosima::fastrtps::Duration_t ack_wait(1, 0);
-  contribution_writer_->wait_for_acknowledgments(ack_wait);
-  state_writer_->wait_for_acknowledgments(ack_wait);
+  if (!stop_requested_) {
+    // Let reliable peers receive our last samples before the writers go away (bounded: a
+    // peer that died meanwhile never acknowledges).
+    const auto ack_start = dds::Clock::now();
+    const eprosima::fastrtps::Duration_t ack_wait(0, 500'000'000);
+    const bool acked = contribution_writer_->wait_for_acknowledgments(ack_wait) == ReturnCode_t::RETCODE_OK &&
+                       state_writer_->wait_for_acknowledgments(ack_wait) == ReturnCode_t::RETCODE_OK;
+    log_->info("last samples {}acknowledged after {:.3f} s", acked ? "" : "not all ",
+                std::chrono::duration<double>(dds::Clock::now() - ack_start).count());
+  }
   return kExitOk;
 }
 

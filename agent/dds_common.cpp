@@ -4,10 +4,12 @@
 #include <signal.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <random>
 #include <stdexcept>
 
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
 #include <spdlog/sinks/basic_file_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -54,6 +56,14 @@ fdds::DomainParticipantQos ParticipantQos(const NetworkConfig& network, const st
   // The default lease is 20 s; a short one lets peers drop a killed process quickly.
   discovery.leaseDuration = DdsDuration(network.participant_lease_s);
   discovery.leaseDuration_announcementperiod = DdsDuration(network.participant_announcement_s);
+  // DEIF_DDS_TRANSPORT=udp: UDPv4 only (no shared memory), for tc/netem fault injection,
+  // which does not touch shared-memory traffic. Default: Fast DDS's SHM + UDPv4.
+  if (const char* transport = std::getenv("DEIF_DDS_TRANSPORT");
+      transport != nullptr && std::string(transport) == "udp") {
+    qos.transport().use_builtin_transports = false;
+    qos.transport().user_transports.push_back(
+        std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>());
+  }
   return qos;
 }
 

@@ -59,16 +59,24 @@ std::set<AgentId> TargetApp::AliveAgents() const {
 std::optional<StepIndex> TargetApp::WaitForAgents() {
   const auto start = dds::Clock::now();
   const auto deadline = start + dds::ToDuration(config_.network.start_timeout_s);
-  // Long enough for transient-local states of running agents to arrive after a restart.
-  const auto discovery = start + dds::ToDuration(1.5 * config_.network.participant_lease_s);
+  // After a restart, running agents (some possibly dead) are discovered over a few
+  // seconds (measured: up to ~3 s with the default transports): wait at least 3 participant
+  // leases, and until no new agent appeared for one lease.
+  const double lease_s = config_.network.participant_lease_s;
+  const auto discovery = start + dds::ToDuration(3.0 * lease_s);
+  const auto quiet = dds::ToDuration(lease_s);
   const auto expected = static_cast<std::size_t>(config_.agents.count);
+  std::size_t seen = 0;
+  auto last_new = start;
   while (!stop_requested_) {
     const auto now = dds::Clock::now();
     const auto agents = AliveAgents();
+    if (agents.size() > seen) last_new = now;
+    seen = agents.size();
     StepIndex max_step = 0;
     for (AgentId id : agents) max_step = std::max<StepIndex>(max_step, latest_.at(id).step());
     const bool resuming = max_step > 0 || options_.start_step.has_value();
-    const bool ready = agents.size() >= expected || (resuming && now >= discovery && !agents.empty()) ||
+    const bool ready = agents.size() >= expected || (resuming && now >= discovery && now - last_new >= quiet && !agents.empty()) ||
                        (now >= deadline && !agents.empty());
     if (ready) {
       std::string who;

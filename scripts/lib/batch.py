@@ -262,8 +262,9 @@ def run_one(task):
         task["processes"], task["domain"], task["keep"])
     shutil.rmtree(out_dir, ignore_errors=True)
     if processes:
-        res = deifrun.run(cfg_path, out_dir, domain=domain, steps=steps, seed=seed,
-                          progress=False, log=open(os.devnull, "w"))
+        with open(os.devnull, "w") as quiet_log:
+            res = deifrun.run(cfg_path, out_dir, domain=domain, steps=steps, seed=seed,
+                              progress=False, log=quiet_log)
         if not res.ok:
             raise RuntimeError(f"{out_dir}: a process exited unexpectedly (see {out_dir}/logs)")
     else:
@@ -356,7 +357,6 @@ def write_timeseries(path, runs):
         for k in steps:
             mse = [s["mse"][k] for s in by_seed if k in s["mse"]]
             mx = [s["max"][k] for s in by_seed if k in s["max"]]
-            first = [s["first"][k] for s in by_seed if k in s["first"]]
             bound = [s["bound"][k] for s in by_seed if k in s["bound"]]
             nees = [s["nees"][k] for s in by_seed if k in s["nees"]]
             opt = [s["opt"][k] for s in by_seed if k in s["opt"] and not math.isnan(s["opt"][k])]

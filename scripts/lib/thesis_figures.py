@@ -11,6 +11,7 @@ and the first seed's artefacts in <scenario>/<mode>/seed-000/); never runs anyth
                         stationary on top, moving below, one column per group.
   results_bar_figure(...) RMSE of moving against stationary per scenario, with the PCRLB.
 """
+import io
 import math
 import os
 
@@ -25,6 +26,23 @@ import deifrun  # noqa: E402
 DPI = 80
 COLOURS = {"moving": "tab:blue", "stationary": "tab:red"}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _save(fig, out_png):
+    """Save at DPI as a 64-colour palette PNG (a third of the size of an RGBA one; the plots
+    use a handful of colours), falling back to matplotlib's own PNG without Pillow."""
+    os.makedirs(os.path.dirname(os.path.abspath(out_png)), exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=DPI, format="png")
+    plt.close(fig)
+    try:
+        from PIL import Image
+        buf.seek(0)
+        Image.open(buf).convert("RGB").quantize(colors=64).save(out_png, optimize=True)
+    except ImportError:
+        with open(out_png, "wb") as f:
+            f.write(buf.getvalue())
+    return out_png
 
 
 def _load_csv(path):
@@ -106,10 +124,7 @@ def scenario_figure(batch_dir, scenario, out_png, title=None):
     ref = rows.get((scenario, "moving")) or rows.get((scenario, "stationary"))
     fig.suptitle(title or f"{scenario}: stationary vs moving sensors, {_label(ref)}", fontsize=10)
     fig.tight_layout()
-    os.makedirs(os.path.dirname(os.path.abspath(out_png)), exist_ok=True)
-    fig.savefig(out_png, dpi=DPI)
-    plt.close(fig)
-    return out_png
+    return _save(fig, out_png)
 
 
 def summary_figure(batch_dir, groups, out_png, title):
@@ -127,17 +142,14 @@ def summary_figure(batch_dir, groups, out_png, title):
                 ax.semilogy(ts["t"], ts["rms_error_m"], lw=1.2, label=f"{scen}: {_label(rows.get((scen, mode)))}")
             ax.set_title(f"{col_title}: {mode}", fontsize=9)
             ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=7, loc="upper right")
+            ax.legend(fontsize=7, loc="best")
             if r == 1:
                 ax.set_xlabel("t [s]")
             if col == 0:
                 ax.set_ylabel(r"RMS $\|x - \hat{x}\|$ [m]")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    os.makedirs(os.path.dirname(os.path.abspath(out_png)), exist_ok=True)
-    fig.savefig(out_png, dpi=DPI)
-    plt.close(fig)
-    return out_png
+    return _save(fig, out_png)
 
 
 def results_bar_figure(batch_dir, out_png, title, scenarios=None):
@@ -160,10 +172,7 @@ def results_bar_figure(batch_dir, out_png, title, scenarios=None):
     ax.legend(fontsize=7)
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    os.makedirs(os.path.dirname(os.path.abspath(out_png)), exist_ok=True)
-    fig.savefig(out_png, dpi=DPI)
-    plt.close(fig)
-    return out_png
+    return _save(fig, out_png)
 
 
 # The thesis's figures and which simulation each shows.

@@ -70,7 +70,7 @@ def errors_after(run, j, step0):
             for r in agent_rows(run, j) if int(r["step"]) >= step0 and int(r["step"]) in truth]
 
 
-LOST_RE = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+)\].*member (\d+) (?:lost|excluded)")
+LOST_RE = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+)\].* agent (\d+) lost")
 
 
 def exclusion_times(run, survivors, victim):
