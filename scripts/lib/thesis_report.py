@@ -195,7 +195,7 @@ def write_results_md(path, thesis_dir, beyond_dir, figures, times=None):
     timing = ""
     if times:
         parts = ", ".join(f"{k} {v:.0f} s" for k, v in times.items() if k != "total")
-        timing = (f" On the 2-core development machine the whole command took "
+        timing = (f"\n\nOn the 2-core development machine the whole command took "
                   f"{times.get('total', sum(times.values())) / 60:.1f} min ({parts}).")
     fig = {k: _fig(v, k, doc_dir) for k, v in figures.items()}
     low = [f"sim{n:02d}" for n in (1, 2, 5, 6, 9, 10)]
