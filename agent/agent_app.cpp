@@ -1,6 +1,7 @@
 #include "agent/agent_app.hpp"
 
 #include <algorithm>
+#include <deque>
 #include <chrono>
 #include <type_traits>
 
@@ -44,10 +45,7 @@ AgentApp::AgentApp(const Config& config, AgentOptions options, std::shared_ptr<s
   state_writer_ = participant_->CreateWriter(dds::kAgentStateTopic, dds::AgentStateWriterQos(network));
   own_contribution_writer_ = dds::ToWriterKey(contribution_writer_->get_instance_handle());
   own_state_writer_ = dds::ToWriterKey(state_writer_->get_instance_handle());
-  // Renew both MANUAL_BY_TOPIC leases four times per lease, also while waiting.
-  asserter_ = std::make_unique<dds::LivelinessAsserter>(
-      std::vector<dds::fdds::DataWriter*>{contribution_writer_, state_writer_},
-      network.liveliness_lease_s / 4.0);
+  published_positions_.push_back(core_.position());  // the initial position
   participant_->CreateReader(dds::kTruthTopic, dds::TruthReaderQos(), &truth_listener_);
   participant_->CreateReader(dds::kRangeTopic, dds::RangeReaderQos(), &range_listener_);
   participant_->CreateReader(dds::kContributionTopic, dds::ContributionReaderQos(network),
@@ -73,6 +71,11 @@ int AgentApp::run() {
     return kExitDuplicateId;
   }
   if (stop_requested_) return kExitOk;
+  // Only now do our writers become alive to the peers (a refused duplicate never does):
+  // renew both MANUAL_BY_TOPIC leases four times per lease, also while waiting.
+  asserter_ = std::make_unique<dds::LivelinessAsserter>(
+      std::vector<dds::fdds::DataWriter*>{contribution_writer_, state_writer_},
+      config_.network.liveliness_lease_s / 4.0);
   if (!options_.out_dir.empty()) {
     csv_.emplace(options_.out_dir + "/" + AgentCsvName(options_.id));
   } else {
@@ -184,33 +187,64 @@ void AgentApp::DoStep(StepIndex k, const std::optional<RangeObservation>& z) {
       Pump(deadline);
     }
     if (!HoldsEverythingFor(k) && !stop_requested_) {
-      std::string missing;
+      std::string contributions, states;
       for (AgentId m : Members()) {
-        if (m != options_.id && held_[k].count(m) == 0) missing += " " + std::to_string(m);
+        if (m == options_.id) continue;
+        if (held_[k].count(m) == 0) contributions += " " + std::to_string(m);
+        auto pos = positions_.find(m);
+        if (pos == positions_.end() || pos->second.count(k - 1) == 0) states += " " + std::to_string(m);
       }
-      log_->warn("step {}: fusing without all members (missing contributions:{})", k, missing);
+      std::size_t unknown = 0;
+      for (const auto& writer : contribution_writers_.AliveUnknown()) unknown += ignored_writers_.count(writer) == 0;
+      log_->warn("step {}: fusing without all members (missing contributions:{}; states of step {}:{}; "
+                 "{} alive writers not yet identified)", k, contributions, k - 1, states, unknown);
     }
   }
 
+  // Fuse ours and every eligible peer's: the same set at every agent that saw the same
+  // history, whatever the arrival order. A contribution that died with its sender is
+  // still fused when it arrived.
   std::vector<Contribution> fused;
-  for (const auto& [id, c] : held_[k]) fused.push_back(c);
+  std::set<AgentId> fused_ids;
+  for (const auto& [id, c] : held_[k]) {
+    if (id == options_.id || Eligible(id, k)) {
+      fused.push_back(c);
+      fused_ids.insert(id);
+    } else {
+      Drop(id, "not in step (joined after this step began)");
+    }
+  }
   const auto positions = MemberPositions(k, fused);
   // Second half: fuse in ascending id (eqs 4.47-4.48), control law, move.
   AgentSnapshot snapshot = core_.FinishStep(k, fused, positions);
   snapshot.alive = static_cast<int>(Members().size());
   held_.erase(held_.begin(), held_.upper_bound(k));
+  fused_last_step_ = std::move(fused_ids);
   done_ = k;
   active_step_ = k + 1;
   Publish(snapshot, /*write_csv=*/true);
 }
 
+bool AgentApp::Eligible(AgentId m, StepIndex k) const {
+  // m takes part in step k when it is in step with us: we fused it at k-1, or we hold its
+  // state of step k-1 or later (so the target measured its range k from there). A process
+  // that has just (re)joined becomes eligible one step after its first state, so no peer
+  // waits for a contribution it cannot have.
+  if (done_ == k - 1 && fused_last_step_.count(m) > 0) return true;
+  auto pos = positions_.find(m);
+  return pos != positions_.end() && !pos->second.empty() && pos->second.rbegin()->first >= k - 1;
+}
+
 bool AgentApp::HoldsEverythingFor(StepIndex k) const {
-  // An alive contribution writer whose id we do not know yet has not sent anything: wait.
-  for (const auto& writer : contribution_writers_.AliveUnknown()) {
-    if (ignored_writers_.count(writer) == 0) return false;
+  // At the first step, an alive contribution writer whose agent id is still unknown (its
+  // state has not arrived yet) is waited for too.
+  if (k == 1) {
+    for (const auto& writer : contribution_writers_.AliveUnknown()) {
+      if (ignored_writers_.count(writer) == 0) return false;
+    }
   }
   for (AgentId m : Members()) {
-    if (m == options_.id) continue;
+    if (m == options_.id || !Eligible(m, k)) continue;
     auto held = held_.find(k);
     if (held == held_.end() || held->second.count(m) == 0) return false;
     auto pos = positions_.find(m);
@@ -220,9 +254,10 @@ bool AgentApp::HoldsEverythingFor(StepIndex k) const {
 }
 
 std::map<AgentId, Vector2> AgentApp::MemberPositions(StepIndex k, const std::vector<Contribution>& fused) const {
-  // The ring of this step: every alive member and every agent fused, each at its position
-  // of step k-1 (the one its range was measured from).
-  std::set<AgentId> ids = Members();
+  // The ring of this step: this agent and every agent fused, each at its position of step
+  // k-1 (the one its range was measured from), as in the in-process simulation where the
+  // members of a step are exactly the agents that contribute to it.
+  std::set<AgentId> ids;
   for (const auto& c : fused) ids.insert(c.agent_id);
   std::map<AgentId, Vector2> positions;
   positions[options_.id] = core_.position();  // our position at k-1
@@ -246,6 +281,8 @@ std::set<AgentId> AgentApp::Members() const {
 void AgentApp::Publish(const AgentSnapshot& snapshot, bool write_csv) {
   deif_msgs::AgentState msg = ToIdl(snapshot, options_.id, instance_token_);
   state_writer_->write(&msg);
+  published_positions_.push_back(snapshot.position_m);
+  while (published_positions_.size() > kKeptPositionSteps) published_positions_.pop_front();
   if (csv_ && write_csv) {
     AgentRow row;
     row.step = snapshot.step;
@@ -275,11 +312,12 @@ void AgentApp::Handle(const Event& event) {
           if (e.msg.step() == dds::kEndOfRunStep) {
             if (!end_of_run_) log_->info("the target announced the end of the run");
             end_of_run_ = true;
-          } else if (e.msg.step() > done_) {
-            truth_seen_.emplace(e.msg.step(), dds::Clock::now());
+          } else {
+            newest_target_step_ = std::max<StepIndex>(newest_target_step_, e.msg.step());
+            if (e.msg.step() > done_) truth_seen_.emplace(e.msg.step(), dds::Clock::now());
           }
         } else if constexpr (std::is_same_v<E, RangeEvent>) {
-          if (e.msg.step() > done_) ranges_[e.msg.step()] = ToRangeObservation(e.msg);
+          OnRange(e.msg);
         } else if constexpr (std::is_same_v<E, ContributionEvent>) {
           OnContribution(e.msg, e.writer);
         } else if constexpr (std::is_same_v<E, StateEvent>) {
@@ -291,6 +329,24 @@ void AgentApp::Handle(const Event& event) {
         }
       },
       event);
+}
+
+void AgentApp::OnRange(const deif_msgs::Range& msg) {
+  if (msg.step() <= done_) return;
+  const RangeObservation z = ToRangeObservation(msg);
+  // The target measures from a position this agent published. A range from the target's
+  // transient-local history that was measured for an earlier process with our id is stale.
+  const bool ours = std::any_of(published_positions_.begin(), published_positions_.end(),
+                                [&z](const Vector2& p) { return p == z.p_sensor; });
+  if (!ours) {
+    if (logged_.emplace(options_.id, "stale range").second) {
+      log_->warn("ignored a range for step {} measured from a position this process never "
+                 "published (stale, logged once)", msg.step());
+    }
+    return;
+  }
+  newest_target_step_ = std::max<StepIndex>(newest_target_step_, msg.step());
+  ranges_[msg.step()] = z;
 }
 
 bool AgentApp::ValidPeerId(AgentId id) const { return id >= 1 && id <= 4 * config_.agents.count; }
@@ -317,7 +373,10 @@ void AgentApp::OnContribution(const deif_msgs::Contribution& msg, const dds::Wri
     return;
   }
   const StepIndex window = config_.network.fusion_window_steps;
-  if (c.step < active_step_ - window || c.step > active_step_ + window) {
+  // The window is centred on the step in work, or on the target's newest step when this
+  // agent is behind (after a restart it jumps there, see run()).
+  const StepIndex centre = std::max(active_step_, newest_target_step_);
+  if (c.step < centre - window || c.step > centre + window) {
     Drop(peer, "step outside the fusion window");
   } else if (c.step <= done_) {
     Drop(peer, "late (step already fused)");
@@ -337,6 +396,8 @@ void AgentApp::OnState(const deif_msgs::AgentState& msg, const dds::WriterKey& w
   }
   if (!ValidPeerId(peer)) return;
   state_writers_.OnSample(writer, peer, dds::Clock::now());
+  participant_ids_[dds::ParticipantOf(writer)] = peer;
+  IdentifyContributionWriters();
   auto& steps = positions_[peer];
   steps[msg.step()] = ToEigenPosition(msg);
   while (steps.size() > kKeptPositionSteps) steps.erase(steps.begin());
@@ -349,6 +410,7 @@ void AgentApp::OnWriterChanged(const WriterEvent& event) {
   }
   if (event.writer == own_contribution_writer_) return;
   const auto id = contribution_writers_.OnWriterChanged(event.writer, event.alive);
+  IdentifyContributionWriters();
   if (!id || ignored_writers_.count(event.writer) > 0) return;
   if (event.alive) {
     log_->info("agent {} is alive again; members now {}", *id, Members().size());
@@ -359,6 +421,16 @@ void AgentApp::OnWriterChanged(const WriterEvent& event) {
       last ? std::chrono::duration<double>(dds::Clock::now() - *last).count() : -1.0;
   log_->warn("agent {} lost (liveliness) {:.3f} s after its last contribution; members now {}",
              *id, since_s, Members().size());
+}
+
+void AgentApp::IdentifyContributionWriters() {
+  // get_key_value is unsupported: a contribution writer is known by its samples, or by the
+  // agent_state samples of the same participant (the GUID prefix), which come first.
+  for (const auto& writer : contribution_writers_.AliveUnknown()) {
+    if (ignored_writers_.count(writer) > 0) continue;
+    auto it = participant_ids_.find(dds::ParticipantOf(writer));
+    if (it != participant_ids_.end()) contribution_writers_.Identify(writer, it->second);
+  }
 }
 
 void AgentApp::Reject(AgentId peer, const std::string& reason) {

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <optional>
@@ -62,6 +63,7 @@ class AgentApp {
   void Pump(dds::Clock::time_point deadline);
   void Handle(const Event& event);
   void OnContribution(const deif_msgs::Contribution& msg, const dds::WriterKey& writer);
+  void OnRange(const deif_msgs::Range& msg);
   void OnState(const deif_msgs::AgentState& msg, const dds::WriterKey& writer);
   void OnWriterChanged(const WriterEvent& event);
 
@@ -71,7 +73,9 @@ class AgentApp {
   // or nullopt when the run is over.
   std::optional<std::pair<StepIndex, std::optional<RangeObservation>>> WaitForNextStep();
   void DoStep(StepIndex k, const std::optional<RangeObservation>& z);
+  bool Eligible(AgentId m, StepIndex k) const;
   bool HoldsEverythingFor(StepIndex k) const;
+  void IdentifyContributionWriters();
   std::map<AgentId, Vector2> MemberPositions(StepIndex k, const std::vector<Contribution>& fused) const;
   std::set<AgentId> Members() const;  // alive members, this agent included
   void Publish(const AgentSnapshot& snapshot, bool write_csv);
@@ -104,11 +108,15 @@ class AgentApp {
   // Application-thread state (touched only by run() and the handlers it calls).
   StepIndex done_ = 0;         // the last step finished (0: the initial state)
   StepIndex active_step_ = 1;  // the step being worked on; the fusion window is about it
+  StepIndex newest_target_step_ = 0;  // the newest step seen in a truth or one of our ranges
   std::map<StepIndex, RangeObservation> ranges_;  // this agent's ranges beyond done_
+  std::deque<Vector2> published_positions_;       // our latest published positions
   std::map<StepIndex, dds::Clock::time_point> truth_seen_;  // target steps beyond done_
   bool end_of_run_ = false;
   dds::WriterTracker contribution_writers_;
   dds::WriterTracker state_writers_;
+  std::set<AgentId> fused_last_step_;  // ids fused at step done_
+  std::map<dds::ParticipantPrefix, AgentId> participant_ids_;  // from agent_state samples
   std::set<dds::WriterKey> ignored_writers_;  // writers whose samples were refused by id
   std::map<StepIndex, std::map<AgentId, Contribution>> held_;  // validated, not yet fused
   std::map<AgentId, std::map<StepIndex, Vector2>> positions_;  // peers' published positions

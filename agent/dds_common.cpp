@@ -56,10 +56,12 @@ fdds::DomainParticipantQos ParticipantQos(const NetworkConfig& network, const st
   // The default lease is 20 s; a short one lets peers drop a killed process quickly.
   discovery.leaseDuration = DdsDuration(network.participant_lease_s);
   discovery.leaseDuration_announcementperiod = DdsDuration(network.participant_announcement_s);
-  // DEIF_DDS_TRANSPORT=udp: UDPv4 only (no shared memory), for tc/netem fault injection,
-  // which does not touch shared-memory traffic. Default: Fast DDS's SHM + UDPv4.
-  if (const char* transport = std::getenv("DEIF_DDS_TRANSPORT");
-      transport != nullptr && std::string(transport) == "udp") {
+  // UDPv4 only by default. Fast DDS's shared-memory transport keeps a killed process's port
+  // segment in /dev/shm; a process restarted into the same participant slot then received
+  // nothing from its peers (measured here with kill -9 + restart of an agent). UDP also lets
+  // tc/netem inject faults. DEIF_DDS_TRANSPORT=shm restores Fast DDS's SHM + UDPv4 default.
+  const char* transport = std::getenv("DEIF_DDS_TRANSPORT");
+  if (transport == nullptr || std::string(transport) != "shm") {
     qos.transport().use_builtin_transports = false;
     qos.transport().user_transports.push_back(
         std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>());
@@ -201,6 +203,12 @@ std::string ToString(const WriterKey& key) {
     if (i == 11) out += '|';
   }
   return out;
+}
+
+ParticipantPrefix ParticipantOf(const WriterKey& key) {
+  ParticipantPrefix prefix{};
+  for (std::size_t i = 0; i < prefix.size(); ++i) prefix[i] = key[i];
+  return prefix;
 }
 
 bool WriterTracker::OnSample(const WriterKey& writer, AgentId id, Clock::time_point now) {

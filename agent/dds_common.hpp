@@ -97,6 +97,9 @@ class DdsParticipant {
 using WriterKey = std::array<std::uint8_t, 16>;
 WriterKey ToWriterKey(const fdds::InstanceHandle_t& handle);
 std::string ToString(const WriterKey& key);
+// The participant of a writer: the first 12 bytes (GUID prefix) of its GUID.
+using ParticipantPrefix = std::array<std::uint8_t, 12>;
+ParticipantPrefix ParticipantOf(const WriterKey& key);
 
 // A reader listener that takes every sample and forwards it, and reports each remote
 // writer becoming alive / not alive (liveliness or unmatching). Runs on DDS threads: the
@@ -145,6 +148,8 @@ class WriterTracker {
  public:
   // A sample from writer claimed agent id. Returns true the first time this writer is seen.
   bool OnSample(const WriterKey& writer, AgentId id, Clock::time_point now);
+  // Learn a writer's id without a sample of its own.
+  void Identify(const WriterKey& writer, AgentId id) { ids_.emplace(writer, id); }
   // Liveliness / matching change. Returns the agent id when a known writer changed state.
   std::optional<AgentId> OnWriterChanged(const WriterKey& writer, bool alive);
 

@@ -36,7 +36,7 @@ int main(int argc, char** argv) {
   std::optional<std::uint64_t> seed;
   cli.add_option("--config", config_path, "Scenario YAML file (see configs/default.yaml)")
       ->required();
-  cli.add_option("--id", id, "This agent's id, 1..agents.count (ids up to 4*count accepted)")
+  cli.add_option("--id", id, "This agent's id, 1..agents.count")
       ->required();
   cli.add_option("--log-dir", log_dir, "Also write the log to DIR/agent-<id>.log")
       ->check(CLI::ExistingDirectory);
@@ -64,9 +64,9 @@ int main(int argc, char** argv) {
     return Fail(agent::kExitBadConfig,
                 "--domain: " + std::to_string(config.network.domain_id) + " is outside 0..232");
   }
-  if (id < 1 || id > 4 * config.agents.count) {
+  if (id < 1 || id > config.agents.count) {  // the start angle exists for 1..count only
     return Fail(agent::kExitBadConfig, "--id: " + std::to_string(id) + " is outside 1.." +
-                                           std::to_string(4 * config.agents.count));
+                                           std::to_string(config.agents.count) + " (agents.count)");
   }
 
   auto log = deif::dds::MakeLogger("agent-" + std::to_string(id), log_dir);
