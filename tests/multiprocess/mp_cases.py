@@ -183,7 +183,10 @@ def case_rogue_publisher(args):
     none is fused (the estimates still equal the oracle) and every one is counted."""
     out = os.path.join(args.work, "run")
     shutil.rmtree(out, ignore_errors=True)
-    launcher = deifrun.Launcher(DEFAULT, out, agents=4, domain=args.domain, steps=300, progress=False)
+    # Long enough (about 5 s of lock-step at full speed) for the rogue to join and send
+    # everything while the agents are stepping.
+    steps = 4000
+    launcher = deifrun.Launcher(DEFAULT, out, agents=4, domain=args.domain, steps=steps, progress=False)
     rogue_log = os.path.join(args.work, "rogue.out")
     try:
         launcher.start()
@@ -193,11 +196,13 @@ def case_rogue_publisher(args):
             rogue = subprocess.run([os.environ["DEIF_ROGUE"], "--domain", str(args.domain),
                                     "--count", "4", "--follow", out], stdout=lf, stderr=subprocess.STDOUT,
                                    timeout=60)
+        rogue_done_step = launcher.current_step()
         launcher.wait(120)
     finally:
         launcher.terminate_all()
         res = launcher.finish()
     check(rogue.returncode == 0, "the rogue publisher ran")
+    check(rogue_done_step < steps, f"the rogue finished while the agents were stepping (step {rogue_done_step})")
     with open(rogue_log) as f:
         sent = int(re.search(r"sent (\d+) bad contributions", f.read()).group(1))
     check(res.ok, "every agent exited 0")
@@ -220,24 +225,28 @@ def case_duplicate_id(args):
     """f. A second agent with a live id refuses to start, with a clear message."""
     out = os.path.join(args.work, "run")
     shutil.rmtree(out, ignore_errors=True)
-    launcher = deifrun.Launcher(DEFAULT, out, agents=3, domain=args.domain, steps=300, progress=False)
+    steps = 4000  # about 5 s at full speed: the duplicate's check (1.5 leases) fits inside
+    launcher = deifrun.Launcher(DEFAULT, out, agents=3, domain=args.domain, steps=steps, progress=False)
     try:
         launcher.start()
         while launcher.current_step() < 20:
             time.sleep(0.02)
+        os.makedirs(os.path.join(args.work, "dup"), exist_ok=True)
         dup = subprocess.run([deifrun.executable("deif_agent"), "--config", launcher.config_path,
                               "--id", "2", "--domain", str(args.domain),
                               "--out", os.path.join(args.work, "dup")],
                              capture_output=True, text=True, timeout=60)
+        dup_done_step = launcher.current_step()
         launcher.wait(120)
     finally:
         launcher.terminate_all()
         res = launcher.finish()
     print("  duplicate said: " + (dup.stderr.strip() or dup.stdout.strip()).splitlines()[-1])
+    check(dup_done_step < steps, f"the duplicate was refused while the run went on (step {dup_done_step})")
     check(dup.returncode == 3, f"the duplicate exited with status 3 (got {dup.returncode})")
     check("already live" in (dup.stderr + dup.stdout), "its message says the id is already live")
     check(res.ok, "the original run was not disturbed (every process exited 0)")
-    check(int(agent_rows(res.out_dir, 2)[-1]["step"]) == 300, "the original agent 2 finished the run")
+    check(int(agent_rows(res.out_dir, 2)[-1]["step"]) == steps, "the original agent 2 finished the run")
 
 
 def case_frozen_agent(args):
