@@ -50,7 +50,11 @@ void Common(Qos& qos, fdds::DurabilityQosPolicyKind durability, int depth) {
 }  // namespace
 
 fdds::DomainParticipantQos ParticipantQos(const NetworkConfig& network, const std::string& name) {
-  fdds::DomainParticipantQos qos;
+  // Start from the factory default, so that an XML profile named by
+  // FASTRTPS_DEFAULT_PROFILES_FILE (initial peers, maxInitialPeersRange, transports: see
+  // docs/RUNNING.md, several hosts) applies to every process.
+  fdds::DomainParticipantQos qos =
+      fdds::DomainParticipantFactory::get_instance()->get_default_participant_qos();
   qos.name(name);
   auto& discovery = qos.wire_protocol().builtin.discovery_config;
   // The default lease is 20 s; a short one lets peers drop a killed process quickly.
@@ -61,7 +65,8 @@ fdds::DomainParticipantQos ParticipantQos(const NetworkConfig& network, const st
   // nothing from its peers (measured here with kill -9 + restart of an agent). UDP also lets
   // tc/netem inject faults. DEIF_DDS_TRANSPORT=shm restores Fast DDS's SHM + UDPv4 default.
   const char* transport = std::getenv("DEIF_DDS_TRANSPORT");
-  if (transport == nullptr || std::string(transport) != "shm") {
+  const bool profile_sets_transports = !qos.transport().user_transports.empty();
+  if (!profile_sets_transports && (transport == nullptr || std::string(transport) != "shm")) {
     qos.transport().use_builtin_transports = false;
     qos.transport().user_transports.push_back(
         std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>());
