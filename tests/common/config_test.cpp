@@ -234,7 +234,7 @@ TEST_CASE("Every shipped scenario in configs/ parses", "[config]") {
   CHECK(parsed >= 5);
 }
 
-TEST_CASE("configs/default.yaml is the thesis's scenario", "[config]") {
+TEST_CASE("configs/default.yaml is the thesis's scenario with a filter noise fit for its motion", "[config]") {
   const Config c =
       deif::LoadConfig((std::filesystem::path(DEIF_SOURCE_DIR) / "configs/default.yaml").string());
   CHECK(c.agents.count == 4);
@@ -244,7 +244,9 @@ TEST_CASE("configs/default.yaml is the thesis's scenario", "[config]") {
   CHECK(c.scenario.steps == 300);
   CHECK(c.filter.range_variance_m2 == 5.3e-4);
   CHECK(c.target.range_noise_variance_m2 == 5.3e-4);
-  CHECK(c.filter.motion_model.process_noise == 1.3e-4);
+  // Not the thesis's 1.3e-4: a random walk must cover the figure-eight's motion (up to
+  // 0.14 m per step, a variance of order 1e-2 m^2); see the comment in the file.
+  CHECK(c.filter.motion_model.process_noise == 3.0e-3);
   CHECK(c.agents.radius_m == 2.0);
   CHECK(c.agents.initial_angles_rad == std::vector<double>{2.1818, 2.4500, 3.7160, 4.5167});
 }
