@@ -349,7 +349,8 @@ void AgentApp::OnRange(const deif_msgs::Range& msg) {
   ranges_[msg.step()] = z;
 }
 
-bool AgentApp::ValidPeerId(AgentId id) const { return id >= 1 && id <= 4 * config_.agents.count; }
+// Every process of a run reads the same config: the ids are 1..agents.count.
+bool AgentApp::ValidPeerId(AgentId id) const { return id >= 1 && id <= config_.agents.count; }
 
 void AgentApp::OnContribution(const deif_msgs::Contribution& msg, const dds::WriterKey& writer) {
   if (writer == own_contribution_writer_) return;  // ours is held directly
@@ -357,7 +358,10 @@ void AgentApp::OnContribution(const deif_msgs::Contribution& msg, const dds::Wri
   // Identity first: an unknown id, our own id from another writer, or a writer that
   // changes its id is refused, and that writer is never counted as a member.
   const auto known = contribution_writers_.IdOf(writer);
-  if (!ValidPeerId(peer) || peer == options_.id || (known && *known != peer)) {
+  // A writer not yet bound to an id that claims one a live writer already speaks for is an
+  // impersonation: the first live writer of an id keeps it until it dies.
+  const bool id_taken = !known && contribution_writers_.AliveIds().count(peer) > 0;
+  if (!ValidPeerId(peer) || peer == options_.id || (known && *known != peer) || id_taken) {
     ignored_writers_.insert(writer);
     Reject(peer, !ValidPeerId(peer) ? "unknown agent id" : "agent id clash");
     return;

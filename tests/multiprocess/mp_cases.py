@@ -22,6 +22,7 @@ sys.path.insert(0, os.path.join(ROOT, "scripts", "lib"))
 import deifrun  # noqa: E402
 
 DEFAULT = os.path.join(HERE, "configs", "slow_circle.yaml")
+REALTIME = os.path.join(HERE, "configs", "slow_circle_realtime.yaml")
 DEG = math.pi / 180.0
 
 
@@ -183,10 +184,11 @@ def case_rogue_publisher(args):
     none is fused (the estimates still equal the oracle) and every one is counted."""
     out = os.path.join(args.work, "run")
     shutil.rmtree(out, ignore_errors=True)
-    # Long enough (about 5 s of lock-step at full speed) for the rogue to join and send
-    # everything while the agents are stepping.
-    steps = 4000
-    launcher = deifrun.Launcher(DEFAULT, out, agents=4, domain=args.domain, steps=steps, progress=False)
+    # Real time at 25 steps/s: the rogue aims each message at the step after the one the
+    # target last published, i.e. inside every agent's fusion window, so only the checks
+    # (not lateness) can keep the messages out.
+    steps = 300
+    launcher = deifrun.Launcher(REALTIME, out, agents=4, domain=args.domain, steps=steps, progress=False)
     rogue_log = os.path.join(args.work, "rogue.out")
     try:
         launcher.start()

@@ -4,8 +4,9 @@
 //
 //   deif_rogue --domain D --count N --follow RUN_DIR
 //
-// It follows the run's progress from RUN_DIR/target.csv to aim at current steps, and
-// prints "sent <n> bad contributions" at the end.
+// It follows the run's progress from RUN_DIR/target.csv and aims every message at the step
+// after the one the target last published (inside the agents' fusion window), and prints
+// "sent <n> bad contributions" at the end.
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -75,40 +76,40 @@ int main(int argc, char** argv) {
   };
 
   for (int round = 0; round < 3; ++round) {
-    const long long k = CurrentStep(run_dir);
     // Cycle the claimed id over the live agents and one that no agent has.
     const int live_id = 1 + round % count;
     const int unknown_id = count + 7;
 
-    auto c = Valid(live_id, k + 1);
+    auto c = Valid(live_id, CurrentStep(run_dir) + 1);
     c.info_x(nan);
     send(c);  // non-finite i_j
 
-    c = Valid(live_id, k + 1);
+    c = Valid(live_id, CurrentStep(run_dir) + 1);
     c.info_yy(inf);
     send(c);  // non-finite I_j
 
-    c = Valid(live_id, k + 1);
+    c = Valid(live_id, CurrentStep(run_dir) + 1);
     c.info_xy(0.5);
     c.info_yx(-3.0);
     send(c);  // not symmetric
 
-    c = Valid(live_id, k + 1);
+    c = Valid(live_id, CurrentStep(run_dir) + 1);
     c.info_xx(1.0);
     c.info_yy(1.0);
     c.info_xy(5.0);
     c.info_yx(5.0);
     send(c);  // symmetric but indefinite (eigenvalues 6 and -4)
 
-    c = Valid(live_id, k + 1);
+    c = Valid(live_id, CurrentStep(run_dir) + 1);
     c.info_xx(1e300);
     send(c);  // absurd magnitude
 
-    send(Valid(live_id, k + 1000));   // a step far in the future
-    send(Valid(live_id, k - 1000));   // a stale step
-    send(Valid(unknown_id, k + 1));   // an id no configured agent has
-    send(Valid(live_id, k + 1));      // a well-formed one under a live agent's id ...
-    send(Valid(live_id, k + 1));      // ... and its duplicate
+    send(Valid(live_id, CurrentStep(run_dir) + 1000));   // a step far in the future
+    send(Valid(live_id, CurrentStep(run_dir) - 1000));   // a stale step
+    send(Valid(unknown_id, CurrentStep(run_dir) + 1));   // an id no configured agent has
+    const long long next = CurrentStep(run_dir) + 1;
+    send(Valid(live_id, next));  // a well-formed one under a live agent's id ...
+    send(Valid(live_id, next));  // ... and its duplicate
   }
   std::printf("sent %d bad contributions\n", sent);
   std::fflush(stdout);
