@@ -38,12 +38,23 @@ fdds::LivelinessQosPolicy ManualByTopic(double lease_s) {
   return liveliness;
 }
 
+constexpr int kMaxAgentInstances = 512;
+
 template <typename Qos>
 void Common(Qos& qos, fdds::DurabilityQosPolicyKind durability, int depth) {
   qos.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
   qos.durability().kind = durability;
   qos.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
   qos.history().depth = depth;
+  // Keyed topics have one instance per agent. Fast DDS 2.9 defaults to max_instances = 10:
+  // with more than 10 agents the 11th instance was silently refused (measured: a 64-agent
+  // run saw exactly 10 agents). Instances are unbounded; each keeps `depth` samples.
+  // (LENGTH_UNLIMITED is refused here in combination with KEEP_LAST: the entities are
+  // not created.) kMaxAgentInstances is well above the ~100 processes one host can run on
+  // one domain (PITFALLS.md).
+  qos.resource_limits().max_instances = kMaxAgentInstances;
+  qos.resource_limits().max_samples_per_instance = depth;
+  qos.resource_limits().max_samples = kMaxAgentInstances * depth;
   qos.data_sharing().off();
 }
 
