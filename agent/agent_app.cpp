@@ -172,6 +172,7 @@ void AgentApp::DoStep(StepIndex k, const std::optional<RangeObservation>& z) {
   if (own) {
     deif_msgs::Contribution msg = ToIdl(*own);
     contribution_writer_->write(&msg);
+    asserter_->NoteWrite(contribution_writer_);
     held_[k][options_.id] = *own;
   }
 
@@ -281,6 +282,7 @@ std::set<AgentId> AgentApp::Members() const {
 void AgentApp::Publish(const AgentSnapshot& snapshot, bool write_csv) {
   deif_msgs::AgentState msg = ToIdl(snapshot, options_.id, instance_token_);
   state_writer_->write(&msg);
+  asserter_->NoteWrite(state_writer_);
   published_positions_.push_back(snapshot.position_m);
   while (published_positions_.size() > kKeptPositionSteps) published_positions_.pop_front();
   if (csv_ && write_csv) {

@@ -268,14 +268,26 @@ std::optional<Clock::time_point> WriterTracker::LastSampleOf(AgentId id) const {
 
 // ---------------------------------------------------------------------------------------
 LivelinessAsserter::LivelinessAsserter(std::vector<fdds::DataWriter*> writers, double period_s)
-    : writers_(std::move(writers)), period_(ToDuration(period_s)) {
+    : writers_(std::move(writers)),
+      period_(ToDuration(period_s)) {
+  last_write_.assign(writers_.size(), Clock::now() - period_);  // assert at once
   thread_ = std::thread([this] {
     std::unique_lock<std::mutex> lock(mutex_);
     while (!stop_) {
-      for (auto* writer : writers_) writer->assert_liveliness();
+      const auto now = Clock::now();
+      for (std::size_t i = 0; i < writers_.size(); ++i) {
+        if (now - last_write_[i] >= period_) writers_[i]->assert_liveliness();
+      }
       cv_.wait_for(lock, period_, [this] { return stop_; });
     }
   });
+}
+
+void LivelinessAsserter::NoteWrite(const fdds::DataWriter* writer) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (std::size_t i = 0; i < writers_.size(); ++i) {
+    if (writers_[i] == writer) last_write_[i] = Clock::now();
+  }
 }
 
 LivelinessAsserter::~LivelinessAsserter() { Stop(); }

@@ -208,8 +208,11 @@ class Inbox {
 };
 
 // ---------------------------------------------------------------------------------------
-// Asserts the liveliness of MANUAL_BY_TOPIC writers every period from its own thread, so a
-// process that is blocked waiting stays alive to its peers.
+// Asserts the liveliness of MANUAL_BY_TOPIC writers from its own thread, so a process that
+// is blocked waiting stays alive to its peers. A write() renews a writer's liveliness too, so
+// a writer that wrote within the last period is not asserted again: in a busy network every
+// assertion is one message to every matched reader (N^2 a period), which at 64 agents on
+// two cores was enough traffic to starve the processes and make the liveliness flap.
 class LivelinessAsserter {
  public:
   LivelinessAsserter(std::vector<fdds::DataWriter*> writers, double period_s);
@@ -217,9 +220,12 @@ class LivelinessAsserter {
   LivelinessAsserter(const LivelinessAsserter&) = delete;
   LivelinessAsserter& operator=(const LivelinessAsserter&) = delete;
   void Stop();
+  // Call after writer->write(): its liveliness was just renewed.
+  void NoteWrite(const fdds::DataWriter* writer);
 
  private:
   std::vector<fdds::DataWriter*> writers_;
+  std::vector<Clock::time_point> last_write_;  // guarded by mutex_
   Clock::duration period_;
   std::mutex mutex_;
   std::condition_variable cv_;
