@@ -62,7 +62,7 @@ struct AgentsConfig {
 
 struct NetworkConfig {
   int domain_id = 0;
-  double liveliness_lease_s = 0.5;   // contribution writer MANUAL_BY_TOPIC lease
+  double liveliness_lease_s = 0.4;   // agent writers' MANUAL_BY_TOPIC lease [s]
   double participant_lease_s = 1.0;  // participant lease duration
   double participant_announcement_s = 0.25;
   double step_timeout_s = 2.0;       // wait for contributions / states before moving on
