@@ -11,16 +11,14 @@
 #include <spdlog/spdlog.h>
 
 #include "agent/dds_common.hpp"
+#include "agent/process_options.hpp"
 #include "common/config.hpp"
 #include "target/target_app.hpp"
 
 namespace {
 constexpr const char* kProgram = "deif_target";
 
-int Fail(int code, const std::string& what) {
-  std::fprintf(stderr, "%s: error: %s\n", kProgram, what.c_str());
-  return code;
-}
+int Fail(int code, const std::string& what) { return deif::dds::FailWith(kProgram, code, what); }
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -28,20 +26,9 @@ int main(int argc, char** argv) {
   deif::dds::SignalStopper signals;  // first: blocks SIGINT/SIGTERM before any thread exists
 
   CLI::App cli{"deif_target: moves the target and publishes truth and noisy ranges over DDS"};
-  std::string config_path;
-  std::string log_dir;
-  std::string out_dir;
-  std::optional<int> domain;
-  std::optional<std::uint64_t> seed;
+  deif::dds::ProcessOptions options;
   std::optional<StepIndex> start_step;
-  cli.add_option("--config", config_path, "Scenario YAML file (see configs/default.yaml)")
-      ->required();
-  cli.add_option("--log-dir", log_dir, "Also write the log to DIR/target.log")
-      ->check(CLI::ExistingDirectory);
-  cli.add_option("--domain", domain, "DDS domain id (0..232); overrides network.domain_id");
-  cli.add_option("--out", out_dir, "Run folder for target.csv and ranges.csv (none if omitted)")
-      ->check(CLI::ExistingDirectory);
-  cli.add_option("--seed", seed, "Overrides scenario.seed (trajectory and range noise)");
+  deif::dds::AddProcessOptions(cli, options, "target", "target.csv and ranges.csv");
   cli.add_option("--start-step", start_step,
                  "Resume at step K after a restart (appends to the CSVs); default: the agents' "
                  "latest step + 1")
@@ -56,20 +43,14 @@ int main(int argc, char** argv) {
 
   Config config;
   try {
-    config = LoadConfig(config_path);
+    config = deif::dds::LoadProcessConfig(options);
   } catch (const std::exception& e) {  // ConfigError names file, key and line
     return Fail(target::kExitBadConfig, e.what());
   }
-  if (domain) config.network.domain_id = *domain;
-  if (seed) config.scenario.seed = *seed;
-  if (config.network.domain_id < 0 || config.network.domain_id > 232) {
-    return Fail(target::kExitBadConfig,
-                "--domain: " + std::to_string(config.network.domain_id) + " is outside 0..232");
-  }
 
-  auto log = deif::dds::MakeLogger("target", log_dir);
+  auto log = deif::dds::MakeLogger("target", options.log_dir);
   try {
-    target::TargetApp app(config, target::TargetOptions{out_dir, start_step}, log);
+    target::TargetApp app(config, target::TargetOptions{options.out_dir, start_step}, log);
     signals.SetHandler([&app, log](int signal_number) {
       log->info("signal {}: stopping", signal_number);
       app.stop();
