@@ -91,11 +91,22 @@ int AgentApp::run() {
     auto next = WaitForNextStep();
     if (!next) break;
     const auto& [k, z] = *next;
-    // After an outage, a SIGSTOP or a restart the target may be ahead: predict once per
-    // step missed (eqs 4.45-4.46; no range, no contribution, no fusion, no motion), as the
-    // in-process simulation does for an agent that takes no part in a step.
-    for (StepIndex missed = done_ + 1; missed < k; ++missed) core_.BeginStep(missed, std::nullopt);
-    if (k > done_ + 1) log_->warn("skipped steps {}..{} (prediction only)", done_ + 1, k - 1);
+    // After a SIGSTOP or a restart the target may be ahead. Adopt a live peer's estimate of
+    // step k-1, so that our prediction, and so our contribution's linearisation point
+    // (eqs 4.49-4.51), is the network's; without one, predict once per step missed (eqs
+    // 4.45-4.46; no range, no contribution, no fusion, no motion), as the in-process
+    // simulation does for an agent that takes no part in a step.
+    if (k > done_ + 1) {
+      if (const auto peer = AdoptPeerEstimate(k - 1)) {
+        log_->warn("missed steps {}..{}: adopted agent {}'s estimate of step {}", done_ + 1,
+                   k - 1, *peer, k - 1);
+      } else {
+        for (StepIndex missed = done_ + 1; missed < k; ++missed) {
+          core_.BeginStep(missed, std::nullopt);
+        }
+        log_->warn("skipped steps {}..{} (prediction only)", done_ + 1, k - 1);
+      }
+    }
     DoStep(k, z);
   }
 
@@ -407,6 +418,28 @@ void AgentApp::OnState(const deif_msgs::AgentState& msg, const dds::WriterKey& w
   auto& steps = positions_[peer];
   steps[msg.step()] = ToEigenPosition(msg);
   while (steps.size() > kKeptPositionSteps) steps.erase(steps.begin());
+  auto& estimates = estimates_[peer];
+  estimates[msg.step()] = {ToEigenEstimate(msg), ToEigenCovariance(msg)};
+  while (estimates.size() > kKeptPositionSteps) estimates.erase(estimates.begin());
+}
+
+std::optional<AgentId> AgentApp::AdoptPeerEstimate(StepIndex step) {
+  for (AgentId m : Members()) {  // ascending id: every rejoiner picks the same peer
+    if (m == options_.id) continue;
+    const auto peer = estimates_.find(m);
+    if (peer == estimates_.end()) continue;
+    const auto at = peer->second.find(step);
+    if (at == peer->second.end()) continue;
+    const auto& [estimate, covariance] = at->second;
+    // Published data is validated like any peer data before it can become our estimate.
+    if (!estimate.allFinite() || !covariance.allFinite() || covariance(0, 0) <= 0.0 ||
+        covariance.determinant() <= 0.0) {
+      continue;
+    }
+    core_.AdoptEstimate(estimate, covariance);
+    return m;
+  }
+  return std::nullopt;
 }
 
 void AgentApp::OnWriterChanged(const WriterEvent& event) {

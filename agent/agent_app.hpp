@@ -81,6 +81,8 @@ class AgentApp {
   void Publish(const AgentSnapshot& snapshot, bool write_csv);
   void Reject(AgentId peer, const std::string& reason);
   void Drop(AgentId peer, const std::string& reason);
+  // After missed steps: adopt the lowest-id member's estimate of `step`, if we hold it.
+  std::optional<AgentId> AdoptPeerEstimate(StepIndex step);
   bool ValidPeerId(AgentId id) const;
 
   // Declaration order is destruction order in reverse: the asserter stops before the
@@ -120,6 +122,8 @@ class AgentApp {
   std::set<dds::WriterKey> ignored_writers_;  // writers whose samples were refused by id
   std::map<StepIndex, std::map<AgentId, Contribution>> held_;  // validated, not yet fused
   std::map<AgentId, std::map<StepIndex, Vector2>> positions_;  // peers' published positions
+  // Peers' published estimates x(k|k) and position covariances, for a rejoin.
+  std::map<AgentId, std::map<StepIndex, std::pair<Vector2, Matrix2>>> estimates_;
   std::map<dds::WriterKey, std::uint64_t> same_id_writers_;    // state writers using our id
   std::set<std::pair<AgentId, std::string>> logged_;           // log-once (peer, reason)
   long rejected_ = 0;

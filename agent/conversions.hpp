@@ -46,6 +46,16 @@ inline Vector2 ToEigenPosition(const deif_msgs::AgentState& msg) {
   return Vector2(msg.pos_x_m(), msg.pos_y_m());
 }
 
+inline Vector2 ToEigenEstimate(const deif_msgs::AgentState& msg) {
+  return Vector2(msg.est_x_m(), msg.est_y_m());
+}
+
+inline Matrix2 ToEigenCovariance(const deif_msgs::AgentState& msg) {
+  Matrix2 P;
+  P << msg.cov_xx(), msg.cov_xy(), msg.cov_xy(), msg.cov_yy();
+  return P;
+}
+
 inline deif_msgs::AgentState ToIdl(const AgentSnapshot& s, AgentId id,
                                    std::uint64_t instance_token) {
   deif_msgs::AgentState msg;

@@ -45,6 +45,16 @@ std::optional<Contribution> AgentCore::BeginStep(StepIndex k,
   return node_.LocalContribution(k, *z);  // eqs (4.49)-(4.51) at x(k|k-1)
 }
 
+void AgentCore::AdoptEstimate(const Vector2& estimate_m, const Matrix2& covariance) {
+  StateVector x = InitialState(config_);  // velocity (constant-velocity model): the prior
+  StateMatrix P = InitialCovariance(config_);
+  x.head<2>() = estimate_m;
+  P.topLeftCorner<2, 2>() = covariance;
+  P.topRightCorner(2, P.cols() - 2).setZero();
+  P.bottomLeftCorner(P.rows() - 2, 2).setZero();
+  node_.Reset(x, P);
+}
+
 AgentSnapshot AgentCore::FinishStep(StepIndex k, const std::vector<Contribution>& contributions,
                                     const std::map<AgentId, Vector2>& member_positions) {
   // eqs (4.47)-(4.48): y(k|k) = y(k|k-1) + sum_j i_j(k), Y(k|k) = Y(k|k-1) + sum_j I_j(k).

@@ -41,6 +41,13 @@ class AgentCore {
   AgentSnapshot FinishStep(StepIndex k, const std::vector<Contribution>& contributions,
                            const std::map<AgentId, Vector2>& member_positions);
 
+  // A (re)joining agent that missed steps adopts a peer's published estimate of the last
+  // step, x(k-1|k-1) and the position block of P(k-1|k-1), instead of fusing from its own
+  // stale prediction (its contributions are linearised at its prediction, eqs 4.49-4.51,
+  // so a stale one would differ from every other node's). With the constant-velocity
+  // model the velocity restarts from zero with the configured initial variance.
+  void AdoptEstimate(const Vector2& estimate_m, const Matrix2& covariance);
+
   const DeifNode& node() const { return node_; }
   const Vector2& position() const { return position_m_; }
 

@@ -136,6 +136,10 @@ Contribution DeifNode::LocalContribution(StepIndex step, const RangeObservation&
   return ComputeContribution(step, z, filter_.PositionEstimate(), sensing_);
 }
 
+void DeifNode::Reset(const StateVector& x, const StateMatrix& P) {
+  filter_ = Eif(filter_.model(), x, P);
+}
+
 int DeifNode::Fuse(const std::vector<Contribution>& contributions) {
   const InformationSum sum = SumContributions(contributions);
   filter_.AddInformation(sum.info_vector, sum.info_matrix);

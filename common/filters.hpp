@@ -101,6 +101,8 @@ class DeifNode {
   Contribution LocalContribution(StepIndex step, const RangeObservation& z) const;
   // eqs (4.47)-(4.48). Returns the number fused.
   int Fuse(const std::vector<Contribution>& contributions);
+  // Replace the estimate by x, P (a node that rejoins adopts a peer's estimate).
+  void Reset(const StateVector& x, const StateMatrix& P);
 
   const Eif& filter() const { return filter_; }
 

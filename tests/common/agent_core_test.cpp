@@ -183,3 +183,23 @@ TEST_CASE("Agents that fuse the same contributions hold bit-identical estimates"
   // Three noiseless ranges from a good geometry pull the estimate toward the truth.
   CHECK((s1.estimate_m - p_true).norm() < (Vector2(0, 0) - p_true).norm());
 }
+
+TEST_CASE("An agent that rejoins adopts a peer's estimate and covariance", "[agent_core]") {
+  // GIVEN an agent whose filter has only predicted for many steps (stale, uncertain)
+  const deif::Config config = deif::ParseConfig("agents: {count: 3}\n", "inline");
+  deif::AgentCore core(config, 2);
+  for (deif::StepIndex k = 1; k <= 50; ++k) core.BeginStep(k, std::nullopt);
+  // WHEN it adopts a peer's published estimate of the last step
+  const deif::Vector2 estimate(0.31, -0.72);
+  deif::Matrix2 covariance;
+  covariance << 4e-4, 1e-5, 1e-5, 3e-4;
+  core.AdoptEstimate(estimate, covariance);
+  // THEN its filter holds exactly that estimate and (to rounding of Y = P^-1) that covariance
+  const deif::Vector2 adopted = core.node().filter().PositionEstimate();
+  CHECK(adopted.x() == Approx(0.31).margin(1e-12));
+  CHECK(adopted.y() == Approx(-0.72).margin(1e-12));
+  const deif::Matrix2 P = core.node().filter().PositionCovariance();
+  CHECK(P(0, 0) == Approx(4e-4).epsilon(1e-9));
+  CHECK(P(0, 1) == Approx(1e-5).epsilon(1e-9));
+  CHECK(P(1, 1) == Approx(3e-4).epsilon(1e-9));
+}
