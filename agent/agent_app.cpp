@@ -97,7 +97,16 @@ int AgentApp::run() {
     // 4.45-4.46; no range, no contribution, no fusion, no motion), as the in-process
     // simulation does for an agent that takes no part in a step.
     if (k > done_ + 1) {
-      if (const auto peer = AdoptPeerEstimate(k - 1)) {
+      // The peers' states of step k-1 were published before the target sent range k, but
+      // after a SIGCONT they may reach us after it: give them up to a step timeout.
+      std::optional<AgentId> peer = AdoptPeerEstimate(k - 1);
+      const auto deadline =
+          dds::Clock::now() + dds::ToDuration(config_.network.step_timeout_s);
+      while (!peer && !stop_requested_ && Members().size() > 1 && dds::Clock::now() < deadline) {
+        Pump(std::min(deadline, dds::Clock::now() + std::chrono::milliseconds(20)));
+        peer = AdoptPeerEstimate(k - 1);
+      }
+      if (peer) {
         log_->warn("missed steps {}..{}: adopted agent {}'s estimate of step {}", done_ + 1,
                    k - 1, *peer, k - 1);
       } else {
