@@ -315,6 +315,24 @@ void RequireNonNegative(const ParseContext& ctx, const Section& s, const std::st
   }
 }
 
+// An optional key that must be > 0 (or >= 0): when present, checked and stored in field.
+template <typename Reader>
+void ReadPositive(const ParseContext& ctx, const Section& s, const std::string& name,
+                  Reader reader, double& field) {
+  if (auto v = Optional(s, name, reader)) {
+    RequirePositive(ctx, s, name, *v);
+    field = *v;
+  }
+}
+template <typename Reader>
+void ReadNonNegative(const ParseContext& ctx, const Section& s, const std::string& name,
+                     Reader reader, double& field) {
+  if (auto v = Optional(s, name, reader)) {
+    RequireNonNegative(ctx, s, name, *v);
+    field = *v;
+  }
+}
+
 // ---------------------------------------------------------------------------------------
 // One function per section.
 
@@ -341,19 +359,13 @@ ScenarioConfig ParseScenario(const YAML::Node& node, const ParseContext& ctx) {
     if (*v < 1) Fail(ctx, s.Key("steps"), s.Get("steps"), "must be >= 1 (got " + s.Get("steps").Scalar() + ")");
     out.steps = *v;
   }
-  if (auto v = Optional(s, "dt_s", num)) {
-    RequirePositive(ctx, s, "dt_s", *v);
-    out.dt_s = *v;
-  }
+  ReadPositive(ctx, s, "dt_s", num, out.dt_s);
   if (auto v = Optional(s, "mode", [&](const std::string& key, const YAML::Node& n) {
         return ReadEnum(ctx, key, n, kStepModes);
       })) {
     out.mode = *v;
   }
-  if (auto v = Optional(s, "period_s", num)) {
-    RequirePositive(ctx, s, "period_s", *v);
-    out.period_s = *v;
-  }
+  ReadPositive(ctx, s, "period_s", num, out.period_s);
   return out;
 }
 
@@ -385,10 +397,7 @@ TargetConfig ParseTarget(const YAML::Node& node, const ParseContext& ctx) {
     RequireNonNegative(ctx, s, "process_noise_variance_m2", *v);
     traj.process_noise_variance = *v;
   }
-  if (auto v = Optional(s, "range_noise_variance_m2", num)) {
-    RequirePositive(ctx, s, "range_noise_variance_m2", *v);
-    out.range_noise_variance_m2 = *v;
-  }
+  ReadPositive(ctx, s, "range_noise_variance_m2", num, out.range_noise_variance_m2);
   return out;
 }
 
@@ -406,27 +415,15 @@ FilterConfig ParseFilter(const YAML::Node& node, const ParseContext& ctx, double
       })) {
     out.motion_model.kind = *v;
   }
-  if (auto v = Optional(s, "process_noise", num)) {
-    RequirePositive(ctx, s, "process_noise", *v);
-    out.motion_model.process_noise = *v;
-  }
-  if (auto v = Optional(s, "range_variance_m2", num)) {
-    RequirePositive(ctx, s, "range_variance_m2", *v);
-    out.range_variance_m2 = *v;
-  }
+  ReadPositive(ctx, s, "process_noise", num, out.motion_model.process_noise);
+  ReadPositive(ctx, s, "range_variance_m2", num, out.range_variance_m2);
   if (auto v = Optional(s, "initial_estimate_m", [&](const std::string& key, const YAML::Node& n) {
         return ReadVector2(ctx, key, n);
       })) {
     out.initial_estimate_m = *v;
   }
-  if (auto v = Optional(s, "initial_position_variance_m2", num)) {
-    RequirePositive(ctx, s, "initial_position_variance_m2", *v);
-    out.initial_position_variance_m2 = *v;
-  }
-  if (auto v = Optional(s, "initial_velocity_variance_m2ps2", num)) {
-    RequirePositive(ctx, s, "initial_velocity_variance_m2ps2", *v);
-    out.initial_velocity_variance_m2ps2 = *v;
-  }
+  ReadPositive(ctx, s, "initial_position_variance_m2", num, out.initial_position_variance_m2);
+  ReadPositive(ctx, s, "initial_velocity_variance_m2ps2", num, out.initial_velocity_variance_m2ps2);
   return out;
 }
 
@@ -437,10 +434,7 @@ SensingFunction ParseSensing(const YAML::Node& node, const ParseContext& ctx) {
     return ReadDouble(ctx, key, n);
   };
   if (auto v = Optional(s, "c0", num)) out.c0 = *v;
-  if (auto v = Optional(s, "r0_m", num)) {
-    RequireNonNegative(ctx, s, "r0_m", *v);
-    out.r0_m = *v;
-  }
+  ReadNonNegative(ctx, s, "r0_m", num, out.r0_m);
   if (auto v = Optional(s, "r1_m", [&](const std::string& key, const YAML::Node& n) {
         return ReadDouble(ctx, key, n, /*allow_infinity=*/true);
       })) {
@@ -499,14 +493,8 @@ AgentsConfig ParseAgents(const YAML::Node& node, const ParseContext& ctx) {
       })) {
     out.initial_centre_m = *v;
   }
-  if (auto v = Optional(s, "radius_m", num)) {
-    RequirePositive(ctx, s, "radius_m", *v);
-    out.radius_m = *v;
-  }
-  if (auto v = Optional(s, "max_speed_mps", num)) {
-    RequireNonNegative(ctx, s, "max_speed_mps", *v);
-    out.max_speed_mps = *v;
-  }
+  ReadPositive(ctx, s, "radius_m", num, out.radius_m);
+  ReadNonNegative(ctx, s, "max_speed_mps", num, out.max_speed_mps);
   if (auto v = Optional(s, "control_law", [&](const std::string& key, const YAML::Node& n) {
         return ReadEnum(ctx, key, n, kControlLaws);
       })) {
@@ -535,18 +523,9 @@ NetworkConfig ParseNetwork(const YAML::Node& node, const ParseContext& ctx) {
     }
     out.domain_id = *v;
   }
-  if (auto v = Optional(s, "liveliness_lease_s", num)) {
-    RequirePositive(ctx, s, "liveliness_lease_s", *v);
-    out.liveliness_lease_s = *v;
-  }
-  if (auto v = Optional(s, "participant_lease_s", num)) {
-    RequirePositive(ctx, s, "participant_lease_s", *v);
-    out.participant_lease_s = *v;
-  }
-  if (auto v = Optional(s, "participant_announcement_s", num)) {
-    RequirePositive(ctx, s, "participant_announcement_s", *v);
-    out.participant_announcement_s = *v;
-  }
+  ReadPositive(ctx, s, "liveliness_lease_s", num, out.liveliness_lease_s);
+  ReadPositive(ctx, s, "participant_lease_s", num, out.participant_lease_s);
+  ReadPositive(ctx, s, "participant_announcement_s", num, out.participant_announcement_s);
   if (!(out.participant_announcement_s < out.participant_lease_s)) {
     const std::string name =
         s.Has("participant_announcement_s") ? "participant_announcement_s" : "participant_lease_s";
@@ -555,14 +534,8 @@ NetworkConfig ParseNetwork(const YAML::Node& node, const ParseContext& ctx) {
              FormatDoubleShort(out.participant_announcement_s) + " >= " +
              FormatDoubleShort(out.participant_lease_s) + ")");
   }
-  if (auto v = Optional(s, "step_timeout_s", num)) {
-    RequirePositive(ctx, s, "step_timeout_s", *v);
-    out.step_timeout_s = *v;
-  }
-  if (auto v = Optional(s, "start_timeout_s", num)) {
-    RequirePositive(ctx, s, "start_timeout_s", *v);
-    out.start_timeout_s = *v;
-  }
+  ReadPositive(ctx, s, "step_timeout_s", num, out.step_timeout_s);
+  ReadPositive(ctx, s, "start_timeout_s", num, out.start_timeout_s);
   if (auto v = Optional(s, "fusion_window_steps", integer)) {
     if (*v < 0) {
       Fail(ctx, s.Key("fusion_window_steps"), s.Get("fusion_window_steps"),
