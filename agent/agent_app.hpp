@@ -16,10 +16,10 @@
 
 #include <spdlog/logger.h>
 
-#include "agent/dds_common.hpp"
-#include "common/agent_core.hpp"
-#include "common/artefacts.hpp"
-#include "common/config.hpp"
+#include "dds/dds_common.hpp"
+#include "common/protocol/agent_core.hpp"
+#include "common/artefacts/artefacts.hpp"
+#include "common/config/config.hpp"
 #include "deif.h"
 
 namespace deif::agent {

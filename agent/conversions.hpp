@@ -4,8 +4,8 @@
 
 #include <cstdint>
 
-#include "common/agent_core.hpp"
-#include "common/filters.hpp"
+#include "common/protocol/agent_core.hpp"
+#include "common/core/filters.hpp"
 #include "deif.h"
 
 namespace deif::agent {

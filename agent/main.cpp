@@ -11,9 +11,9 @@
 #include <spdlog/spdlog.h>
 
 #include "agent/agent_app.hpp"
-#include "agent/dds_common.hpp"
-#include "agent/process_options.hpp"
-#include "common/config.hpp"
+#include "dds/dds_common.hpp"
+#include "dds/process_options.hpp"
+#include "common/config/config.hpp"
 
 namespace {
 constexpr const char* kProgram = "deif_agent";

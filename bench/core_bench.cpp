@@ -9,10 +9,10 @@
 #include <cmath>
 #include <vector>
 
-#include "common/control_law.hpp"
-#include "common/filters.hpp"
-#include "common/fisher.hpp"
-#include "common/models.hpp"
+#include "common/core/control_law.hpp"
+#include "common/core/filters.hpp"
+#include "common/core/fisher.hpp"
+#include "common/core/models.hpp"
 
 namespace {
 

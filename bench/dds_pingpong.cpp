@@ -41,7 +41,7 @@
 #include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
 #include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
 
-#include "agent/dds_common.hpp"
+#include "dds/dds_common.hpp"
 #include "deifPubSubTypes.h"
 
 namespace {

@@ -25,8 +25,8 @@
 
 #include <CLI/CLI.hpp>
 
-#include "agent/dds_common.hpp"
-#include "common/config.hpp"
+#include "dds/dds_common.hpp"
+#include "common/config/config.hpp"
 #include "deifPubSubTypes.h"
 
 namespace {

@@ -2,8 +2,8 @@
 // Eigen types. Pure field copies.
 #pragma once
 
-#include "common/artefacts.hpp"
-#include "common/types.hpp"
+#include "common/artefacts/artefacts.hpp"
+#include "common/core/types.hpp"
 #include "deif.h"
 
 namespace deif::target {

@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "common/artefacts.hpp"
+#include "common/artefacts/artefacts.hpp"
 
 namespace deif::target {
 

@@ -10,9 +10,9 @@
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
-#include "agent/dds_common.hpp"
-#include "agent/process_options.hpp"
-#include "common/config.hpp"
+#include "dds/dds_common.hpp"
+#include "dds/process_options.hpp"
+#include "common/config/config.hpp"
 #include "target/target_app.hpp"
 
 namespace {

@@ -12,10 +12,10 @@
 
 #include <spdlog/logger.h>
 
-#include "agent/dds_common.hpp"
-#include "common/artefacts.hpp"
-#include "common/config.hpp"
-#include "common/target_core.hpp"
+#include "dds/dds_common.hpp"
+#include "common/artefacts/artefacts.hpp"
+#include "common/config/config.hpp"
+#include "common/protocol/target_core.hpp"
 #include "deif.h"
 #include "target/csv_appender.hpp"
 

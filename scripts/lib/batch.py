@@ -252,7 +252,7 @@ def sim_executable():
     exe = os.environ.get("DEIF_SIM_EXE")
     if exe:
         return exe
-    return os.path.join(deifrun.build_dir(), "common", "deif_sim")
+    return os.path.join(deifrun.build_dir(), "bin", "deif_sim")
 
 
 def run_one(task):

@@ -65,8 +65,7 @@ def build_dir():
 
 
 def executable(name):
-    sub = "agent" if name == "deif_agent" else "target" if name == "deif_target" else "common"
-    path = os.path.join(build_dir(), sub, name)
+    path = os.path.join(build_dir(), "bin", name)
     if not os.path.exists(path):
         raise SystemExit(f"deif-run: error: {path} not found; build first (scripts/build)")
     return path

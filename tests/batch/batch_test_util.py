@@ -33,7 +33,7 @@ def work_dir(name):
 def sim_exe():
     exe = os.environ.get("DEIF_SIM_EXE")
     if not exe:
-        exe = os.path.join(os.environ.get("DEIF_BUILD_DIR", os.path.join(ROOT, "build")), "common", "deif_sim")
+        exe = os.path.join(os.environ.get("DEIF_BUILD_DIR", os.path.join(ROOT, "build")), "bin", "deif_sim")
         os.environ["DEIF_SIM_EXE"] = exe
     if not os.path.exists(exe):
         print(f"deif_sim not found at {exe}; build the deif_sim target", file=sys.stderr)

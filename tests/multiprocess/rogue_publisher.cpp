@@ -17,7 +17,7 @@
 
 #include <CLI/CLI.hpp>
 
-#include "agent/dds_common.hpp"
+#include "dds/dds_common.hpp"
 #include "deif.h"
 
 namespace {

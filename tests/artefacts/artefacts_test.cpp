@@ -1,0 +1,106 @@
+// The run artefacts: exact headers from DESIGN.md, rows flushed as written, and numbers
+// that read back to the same doubles.
+#include <catch2/catch.hpp>
+
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "common/artefacts/artefacts.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// A fresh, empty folder for one test.
+fs::path FreshDir(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() /
+                       ("deif_artefacts_test_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::vector<std::string> ReadLines(const fs::path& path) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(in, line);) lines.push_back(line);
+  return lines;
+}
+
+}  // namespace
+
+TEST_CASE("CSV headers are exactly those of DESIGN.md (agent csv with a trailing dropped)",
+          "[artefacts]") {
+  const fs::path dir = FreshDir("headers");
+  {
+    deif::TargetCsv target((dir / "target.csv").string());
+    deif::RangesCsv ranges((dir / "ranges.csv").string());
+    deif::AgentCsv agent((dir / deif::AgentCsvName(1)).string());
+  }
+  CHECK(ReadLines(dir / "target.csv") == std::vector<std::string>{"step,t,x_true,y_true"});
+  CHECK(ReadLines(dir / "ranges.csv") ==
+        std::vector<std::string>{"step,agent_id,range,variance,sensor_x,sensor_y"});
+  CHECK(ReadLines(dir / "agent_1.csv") ==
+        std::vector<std::string>{"step,t,x_est,y_est,p_xx,p_xy,p_yy,pos_x,pos_y,angle,alive,"
+                                 "fused,rejected,dropped"});
+  fs::remove_all(dir);
+}
+
+TEST_CASE("Agent csv files are named agent_<id>.csv", "[artefacts]") {
+  CHECK(deif::AgentCsvName(1) == "agent_1.csv");
+  CHECK(deif::AgentCsvName(12) == "agent_12.csv");
+}
+
+TEST_CASE("A row is on disk as soon as it is written, before the writer closes",
+          "[artefacts]") {
+  const fs::path dir = FreshDir("flush");
+  deif::TargetCsv target((dir / "target.csv").string());
+  target.Write({2, 0.5, deif::Vector2(1.5, -0.25)});
+  // Read through a separate stream while the writer is still open.
+  CHECK(ReadLines(dir / "target.csv") ==
+        std::vector<std::string>{"step,t,x_true,y_true", "2,0.5,1.5,-0.25"});
+  fs::remove_all(dir);
+}
+
+TEST_CASE("Rows list the fields in header order", "[artefacts]") {
+  const fs::path dir = FreshDir("rows");
+  {
+    deif::RangesCsv ranges((dir / "ranges.csv").string());
+    ranges.Write({3, 2, 1.25, 0.5, deif::Vector2(-1.0, 2.0)});
+    deif::AgentCsv agent((dir / "agent_2.csv").string());
+    deif::AgentRow row;
+    row.step = 3;
+    row.t_s = 0.75;
+    row.estimate_m = deif::Vector2(0.25, -0.5);
+    row.covariance << 1.0, 0.125, 0.125, 2.0;
+    row.position_m = deif::Vector2(3.0, 4.0);
+    row.angle_rad = -1.5;
+    row.alive = 4;
+    row.fused = 3;
+    row.rejected = 7;
+    row.dropped = 9;
+    agent.Write(row);
+  }
+  CHECK(ReadLines(dir / "ranges.csv").at(1) == "3,2,1.25,0.5,-1,2");
+  CHECK(ReadLines(dir / "agent_2.csv").at(1) == "3,0.75,0.25,-0.5,1,0.125,2,3,4,-1.5,4,3,7,9");
+  fs::remove_all(dir);
+}
+
+TEST_CASE("FormatDouble writes 17 significant digits that read back exactly", "[artefacts]") {
+  // 0.1 is 0x3FB999999999999A = 0.1000000000000000055511151231257827...
+  CHECK(deif::FormatDouble(0.1) == "0.10000000000000001");
+  CHECK(deif::FormatDouble(2.0) == "2");
+  for (const double value : {1.0 / 3.0, -2.5e-300, 6.02214076e23, 0.1 + 0.2, 1e-17}) {
+    CHECK(std::strtod(deif::FormatDouble(value).c_str(), nullptr) == value);
+  }
+}
+
+TEST_CASE("A CSV that cannot be created throws naming the path", "[artefacts]") {
+  const std::string path = "/nonexistent_dir_for_deif/target.csv";
+  CHECK_THROWS_WITH(deif::TargetCsv(path), Catch::Contains(path));
+}
