@@ -26,7 +26,7 @@ using deif::StateMatrix;
 using deif::StateVector;
 using deif::Vector2;
 
-constexpr double kPi = 3.14159265358979323846;
+using deif::kPi;
 constexpr double kRangeVariance = 5.3e-4;  // R_j of configs/default.yaml
 constexpr double kRadius_m = 2.0;
 

@@ -1,5 +1,7 @@
 #include "common/core/control_law.hpp"
 
+#include "common/core/fisher.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -7,15 +9,14 @@
 namespace deif {
 namespace {
 
-constexpr double kPi = 3.141592653589793238462643383279;
-constexpr double kTwoPi = 2.0 * kPi;
 
 // The desired gap s_i for each gap of a ring (gap i runs from ring[i] to ring[i+1]).
 std::vector<double> DesiredGaps(const std::vector<RingMember>& ring,
                                 const std::vector<double>& gaps) {
   const std::size_t n = ring.size();
+  const double optimal = OptimalGapRad(static_cast<int>(n));  // section 2.3.1.4
   if (n >= 3) {
-    return std::vector<double>(n, kTwoPi / static_cast<double>(n));  // Proposition 1
+    return std::vector<double>(n, optimal);  // Proposition 1: 2 pi / N
   }
   if (n == 2) {
     // Section 2.3.1.4: for two sensors the optimum is a right angle, so the smaller gap
@@ -25,8 +26,8 @@ std::vector<double> DesiredGaps(const std::vector<RingMember>& ring,
     if (gaps[0] == gaps[1]) {
       first_is_small = ring[0].agent_id < ring[1].agent_id;
     }
-    return first_is_small ? std::vector<double>{kPi / 2.0, 3.0 * kPi / 2.0}
-                          : std::vector<double>{3.0 * kPi / 2.0, kPi / 2.0};
+    return first_is_small ? std::vector<double>{optimal, kTwoPi - optimal}
+                          : std::vector<double>{kTwoPi - optimal, optimal};
   }
   return std::vector<double>(n, kTwoPi);
 }
@@ -129,10 +130,10 @@ double MaxGapError(const std::vector<RingMember>& members) {
     return 0.0;
   }
   const std::vector<double> gaps = RingGaps(FormRing(members));
+  const double optimal = OptimalGapRad(static_cast<int>(n));
   if (n == 2) {
-    return std::abs(std::min(gaps[0], gaps[1]) - kPi / 2.0);
+    return std::abs(std::min(gaps[0], gaps[1]) - optimal);
   }
-  const double optimal = kTwoPi / static_cast<double>(n);
   double worst = 0.0;
   for (const double gap : gaps) {
     worst = std::max(worst, std::abs(gap - optimal));

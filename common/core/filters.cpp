@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <utility>
 
@@ -77,14 +78,95 @@ Eif::Eif(const MotionModel& model, const StateVector& x0, const StateMatrix& P0)
   y_ = Y_ * x0;  // y = Y x
 }
 
+Eif::Eif(const MotionModel& model, InfoState state)
+    : model_(model), y_(std::move(state.y)), Y_(std::move(state.Y)) {
+  DEIF_THROW_UNLESS(y_.size() == model.StateDim() && Y_.rows() == model.StateDim() &&
+                        Y_.cols() == model.StateDim(),
+                    "the information state must have the model's state dimension");
+}
+
 void Eif::Predict() {
-  const StateMatrix F = model_.TransitionMatrix();
-  const auto Y_ldlt = Y_.ldlt();
-  const StateVector x = Y_ldlt.solve(y_);                                        // x(k-1|k-1) = Y^-1 y
-  const StateMatrix P = Symmetrized(Y_ldlt.solve(StateMatrix::Identity(Y_.rows(), Y_.cols())));
-  const StateMatrix P_pred = F * P * F.transpose() + model_.ProcessNoise();
-  Y_ = SpdInverse(P_pred);  // eq (4.39)/(4.46): Y(k|k-1) = [F Y^-1 F^T + Q]^-1
-  y_ = Y_ * (F * x);        // eq (4.38)/(4.45): y(k|k-1) = Y(k|k-1) f(x(k-1|k-1))
+  InfoState predicted = deif::Predict(model_, {y_, Y_});
+  y_ = std::move(predicted.y);
+  Y_ = std::move(predicted.Y);
+}
+
+InfoState ToInfoState(const StateVector& x, const StateMatrix& P) {
+  InfoState s;
+  s.Y = SpdInverse(P);  // Y = P^-1
+  s.y = s.Y * x;        // y = Y x
+  return s;
+}
+
+InfoState Predict(const MotionModel& model, const InfoState& posterior) {
+  const StateMatrix F = model.TransitionMatrix();
+  const auto Y_ldlt = posterior.Y.ldlt();
+  const StateVector x = Y_ldlt.solve(posterior.y);  // x(k-1|k-1) = Y^-1 y
+  const StateMatrix P =
+      Symmetrized(Y_ldlt.solve(StateMatrix::Identity(posterior.Y.rows(), posterior.Y.cols())));
+  const StateMatrix P_pred = F * P * F.transpose() + model.ProcessNoise();
+  InfoState predicted;
+  predicted.Y = SpdInverse(P_pred);  // eq (4.39)/(4.46): Y(k|k-1) = [F Y^-1 F^T + Q]^-1
+  predicted.y = predicted.Y * (F * x);  // eq (4.38)/(4.45): y(k|k-1) = Y(k|k-1) f(x(k-1|k-1))
+  return predicted;
+}
+
+bool IsValidInfoState(const InfoState& s, int state_dim) {
+  if (s.y.size() != state_dim || s.Y.rows() != state_dim || s.Y.cols() != state_dim) {
+    return false;
+  }
+  if (!s.y.allFinite() || !s.Y.allFinite()) return false;
+  const double scale = std::max(1.0, s.Y.cwiseAbs().maxCoeff());
+  if ((s.Y - s.Y.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) return false;
+  const Eigen::LLT<StateMatrix> llt(Symmetrized(s.Y));
+  return llt.info() == Eigen::Success;
+}
+
+namespace {
+
+// log det of w Y_a + (1 - w) Y_b; -inf when not positive definite.
+double LogDetOfBlend(const StateMatrix& Y_a, const StateMatrix& Y_b, double w) {
+  const Eigen::LLT<StateMatrix> llt(Symmetrized(w * Y_a + (1.0 - w) * Y_b));
+  if (llt.info() != Eigen::Success) return -std::numeric_limits<double>::infinity();
+  return 2.0 * llt.matrixLLT().diagonal().array().log().sum();
+}
+
+}  // namespace
+
+InfoState CovarianceIntersection(const InfoState& a, const InfoState& b) {
+  // log det is concave in w (Y_ci is affine in w), so golden-section search finds the
+  // maximum on [0, 1]. 60 steps shrink the bracket below 1e-12.
+  constexpr double kInvPhi = 0.6180339887498948482;
+  double lo = 0.0;
+  double hi = 1.0;
+  double x1 = hi - kInvPhi * (hi - lo);
+  double x2 = lo + kInvPhi * (hi - lo);
+  double f1 = LogDetOfBlend(a.Y, b.Y, x1);
+  double f2 = LogDetOfBlend(a.Y, b.Y, x2);
+  for (int i = 0; i < 60; ++i) {
+    if (f1 < f2) {
+      lo = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = lo + kInvPhi * (hi - lo);
+      f2 = LogDetOfBlend(a.Y, b.Y, x2);
+    } else {
+      hi = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = hi - kInvPhi * (hi - lo);
+      f1 = LogDetOfBlend(a.Y, b.Y, x1);
+    }
+  }
+  double w = 0.5 * (lo + hi);
+  // The ends are candidates too (one estimate may dominate the other entirely).
+  const double f_mid = LogDetOfBlend(a.Y, b.Y, w);
+  if (LogDetOfBlend(a.Y, b.Y, 1.0) >= f_mid) w = 1.0;
+  if (LogDetOfBlend(a.Y, b.Y, 0.0) > std::max(f_mid, LogDetOfBlend(a.Y, b.Y, 1.0))) w = 0.0;
+  InfoState out;
+  out.Y = Symmetrized(w * a.Y + (1.0 - w) * b.Y);
+  out.y = w * a.y + (1.0 - w) * b.y;
+  return out;
 }
 
 void Eif::AddInformation(const InfoVector& info_vector, const InfoMatrix& info_matrix) {

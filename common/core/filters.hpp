@@ -48,10 +48,34 @@ class Ekf {
 };
 
 // ---------------------------------------------------------------------------------------
+// An estimate in information form: y = Y x (the information vector) and Y = P^-1 (the
+// information matrix), of the model's state dimension.
+struct InfoState {
+  StateVector y;  // y
+  StateMatrix Y;  // Y
+};
+
+// The state of a moment-form prior (x, P) in information form.
+InfoState ToInfoState(const StateVector& x, const StateMatrix& P);
+// eqs (4.38)-(4.39) / (4.45)-(4.46) as a pure function: the prediction of `posterior`.
+InfoState Predict(const MotionModel& model, const InfoState& posterior);
+// True when y and Y are finite, Y is symmetric (to a relative 1e-9) and positive definite.
+bool IsValidInfoState(const InfoState& s, int state_dim);
+
+// Covariance intersection of information states (Julier and Uhlmann 1997):
+//   Y = w Y_a + (1 - w) Y_b,  y = w y_a + (1 - w) y_b,
+// with w in [0, 1] chosen to maximise det Y (the smallest covariance determinant). Whatever
+// the correlation between a and b, the result never claims more information than either
+// (P_ci is consistent). The weight is found by a fixed number of golden-section steps, so
+// the result is a deterministic function of its inputs (bit-identical at every node).
+InfoState CovarianceIntersection(const InfoState& a, const InfoState& b);
+
+// ---------------------------------------------------------------------------------------
 // Extended information filter in information form (y, Y).
 class Eif {
  public:
   Eif(const MotionModel& model, const StateVector& x0, const StateMatrix& P0);
+  Eif(const MotionModel& model, InfoState state);
 
   void Predict();  // eqs (4.38)-(4.39) / (4.45)-(4.46)
   // eqs (4.40)-(4.41) / (4.47)-(4.48): y += i, Y += I, with (i, I) in the position block.
@@ -59,6 +83,7 @@ class Eif {
 
   const StateVector& info_vector() const { return y_; }  // y
   const StateMatrix& info_matrix() const { return Y_; }  // Y
+  InfoState info_state() const { return {y_, Y_}; }
   StateVector State() const;                              // x = Y^-1 y
   StateMatrix Covariance() const;                         // P = Y^-1
   Vector2 PositionEstimate() const { return PositionOf(State()); }

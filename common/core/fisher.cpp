@@ -7,7 +7,6 @@
 namespace deif {
 namespace {
 
-constexpr double kPi = 3.141592653589793238462643383279;
 
 }  // namespace
 

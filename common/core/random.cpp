@@ -1,12 +1,13 @@
 #include "common/core/random.hpp"
 
+#include "common/core/types.hpp"
+
 #include <cmath>
 
 namespace deif {
 namespace {
 
 constexpr std::uint64_t kGoldenGamma = 0x9E3779B97F4A7C15ULL;  // SplitMix64 increment
-constexpr double kTwoPi = 6.283185307179586476925286766559;
 
 // Which of the uniforms behind a draw: the public uniform and the two Box-Muller inputs
 // come from disjoint hashes so that they are independent of one another.

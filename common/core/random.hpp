@@ -9,7 +9,8 @@ namespace deif {
 
 enum class NoiseStream : std::uint64_t {
   kRangeNoise = 1,    // index = agent id
-  kTargetProcess = 2  // index = axis (0: x, 1: y)
+  kTargetProcess = 2,  // index = axis (0: x, 1: y)
+  kNetwork = 3         // the simulated network's draws (step = draw counter)
 };
 
 // SplitMix64 finaliser (Steele, Lea, Flood 2014).

@@ -22,6 +22,10 @@ using InfoMatrix = Eigen::Matrix2d;  // I_j
 using StateVector = Eigen::VectorXd;
 using StateMatrix = Eigen::MatrixXd;
 
+// pi and 2 pi, written once for the whole project.
+inline constexpr double kPi = 3.141592653589793238462643383279502884;
+inline constexpr double kTwoPi = 2.0 * kPi;
+
 using AgentId = int;
 using StepIndex = std::int64_t;
 

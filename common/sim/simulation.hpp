@@ -1,32 +1,40 @@
-// The in-process simulation: a target plus N DEIF nodes with the control law, stepped
-// deterministically from the seed, with no transport. It is the oracle the multi-process
-// system is compared with, and the fast path for Monte Carlo work.
+// The in-process simulation: the target and N agents, each running the very protocol the
+// DDS processes run (common/protocol), connected by a simulated network (sim_network.hpp)
+// in virtual time, deterministic from the seed. With the default network_sim (no loss, no
+// delay) it is the oracle the multi-process system is compared with, bit for bit; with
+// loss, delay, duplicates, reordering and partitions it shows the protocol on a real
+// network in seconds.
 #pragma once
 
+#include <cstdint>
+#include <functional>
+#include <map>
 #include <string>
-#include <vector>
 
 #include "common/config/config.hpp"
+#include "common/protocol/agent_protocol.hpp"
+#include "common/sim/metrics.hpp"
+#include "common/sim/sim_network.hpp"
 
-namespace deif {
+namespace deif::sim {
 
-struct SimulationMetrics {
-  StepIndex steps = 0;
-  double rmse_m = 0.0;           // sqrt(mean over steps and live agents of ||x - x_hat||^2)
-  double max_error_m = 0.0;      // max over steps and live agents of ||x - x_hat||
-  double final_max_gap_error_rad = 0.0;  // MaxGapError of the final ring
-  double mean_optimality_ratio = 0.0;    // mean over steps of det J / det J* (true geometry)
-  double pcrlb_rmse_m = 0.0;     // sqrt(mean over steps of trace of the position PCRLB)
-  double anees = 0.0;            // mean NEES of the position over steps / 2 (dimension)
-  int final_alive = 0;
-  std::vector<double> error_m;   // ||x - x_hat|| per step (agent with the lowest live id)
-  std::vector<double> pcrlb_m;   // sqrt(trace) of the position PCRLB per step
+struct SimulationOptions {
+  std::string out_dir;        // where the artefacts go (created); empty: none written
+  DropFilter drop_filter;     // scripted drops (tests)
+  // Every log line of every simulated process ("agent-3", "target"), when set.
+  std::function<void(const std::string& process, protocol::LogLevel, const std::string&)> log;
 };
 
-// Run the scenario. When out_dir is not empty, write the run artefacts (target.csv,
-// ranges.csv, agent_<id>.csv) into it; summary.json is the caller's.
-// Faults: kill removes the agent from that step on; stop/cont remove it and bring it back
-// (it predicts without fusing while stopped); restart_target drops every range of that step.
-SimulationMetrics RunSimulation(const Config& config, const std::string& out_dir = "");
+struct SimulationResult {
+  RunMetrics metrics;
+  RunData run;                                       // the artefacts, in memory
+  std::map<AgentId, protocol::AgentCounters> counters;
+  std::map<std::string, int> exit_codes;             // "agent-1" .. "target"
+  std::int64_t messages_sent = 0;
+  std::int64_t messages_lost_first_try = 0;
+  double virtual_time_s = 0.0;
+};
 
-}  // namespace deif
+SimulationResult RunSimulation(const Config& config, const SimulationOptions& options = {});
+
+}  // namespace deif::sim

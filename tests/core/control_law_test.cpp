@@ -11,8 +11,8 @@
 namespace deif {
 namespace {
 
-constexpr double kPi = 3.141592653589793238462643383279;
-constexpr double kTwoPi = 2.0 * kPi;
+using deif::kPi;
+using deif::kTwoPi;
 
 // Every agent applies the law to the same snapshot (synchronous update, eq 3.10).
 std::vector<RingMember> SynchronousStep(ControlLawKind law,

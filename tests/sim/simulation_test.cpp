@@ -1,10 +1,12 @@
 // The in-process simulation: deterministic for a seed, equal to a centralized EIF replayed
-// from its own artefacts, fault tolerant, and the deif_sim executable around it.
+// from its own artefacts, fault tolerant with faults on their exact step, and the deif_sim
+// executable around it.
 #include <catch2/catch.hpp>
 
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -16,19 +18,20 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/artefacts/artefacts.hpp"
 #include "common/config/config.hpp"
 #include "common/core/filters.hpp"
 #include "common/sim/simulation.hpp"
 
 namespace fs = std::filesystem;
+using deif::AgentRow;
 using deif::Config;
+using deif::kPi;
 using deif::ParseConfig;
-using deif::RunSimulation;
-using deif::SimulationMetrics;
+using deif::sim::RunSimulation;
+using deif::sim::SimulationResult;
 
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 fs::path FreshDir(const std::string& name) {
   const fs::path dir = fs::temp_directory_path() /
@@ -44,40 +47,11 @@ std::string ReadText(const fs::path& path) {
   return text.str();
 }
 
-// A CSV read back from disk: the header's columns and every row's fields as numbers.
-struct Csv {
-  std::vector<std::string> header;
-  std::vector<std::vector<double>> rows;
-  std::size_t Column(const std::string& name) const {
-    for (std::size_t i = 0; i < header.size(); ++i) {
-      if (header[i] == name) return i;
-    }
-    FAIL("no column " << name);
-    return 0;
-  }
-};
-
-std::vector<std::string> SplitComma(const std::string& line) {
-  std::vector<std::string> fields;
-  std::stringstream stream(line);
-  for (std::string field; std::getline(stream, field, ',');) fields.push_back(field);
-  return fields;
-}
-
-Csv ReadCsv(const fs::path& path) {
+std::string FirstLine(const fs::path& path) {
   std::ifstream in(path);
-  REQUIRE(in.good());
-  Csv csv;
   std::string line;
   std::getline(in, line);
-  csv.header = SplitComma(line);
-  while (std::getline(in, line)) {
-    std::vector<double> row;
-    for (const std::string& field : SplitComma(line)) row.push_back(std::strtod(field.c_str(), nullptr));
-    REQUIRE(row.size() == csv.header.size());
-    csv.rows.push_back(row);
-  }
-  return csv;
+  return line;
 }
 
 // The exit status of a shell command.
@@ -85,6 +59,13 @@ int RunCommand(const std::string& command) {
   const int status = std::system(command.c_str());
   REQUIRE(WIFEXITED(status));
   return WEXITSTATUS(status);
+}
+
+SimulationResult Simulate(const std::string& yaml, const std::string& out_dir = "") {
+  const Config config = ParseConfig(yaml, "inline");
+  deif::sim::SimulationOptions options;
+  options.out_dir = out_dir;
+  return RunSimulation(config, options);
 }
 
 const char* const kFourAgents =
@@ -98,70 +79,49 @@ const char* const kFourAgents =
 
 TEST_CASE("The simulation is deterministic for a seed and differs for another seed",
           "[simulation]") {
-  const Config config = ParseConfig(kFourAgents, "inline");
-  const fs::path a = FreshDir("det_a");
-  const fs::path b = FreshDir("det_b");
-  const SimulationMetrics ma = RunSimulation(config, a.string());
-  const SimulationMetrics mb = RunSimulation(config, b.string());
-  for (const char* file :
-       {"target.csv", "ranges.csv", "agent_1.csv", "agent_2.csv", "agent_3.csv", "agent_4.csv"}) {
-    INFO(file);
-    CHECK(ReadText(a / file) == ReadText(b / file));
+  const SimulationResult a = Simulate(kFourAgents);
+  const SimulationResult b = Simulate(kFourAgents);
+  const SimulationResult c = Simulate(std::string(kFourAgents) + "network_sim: {}\n" +
+                                      "filter: {}\n", "");
+  std::string other = kFourAgents;
+  other.replace(other.find("seed: 7"), 7, "seed: 8");
+  const SimulationResult d = Simulate(other);
+  REQUIRE(a.run.agents.at(1).size() == 120);
+  for (std::size_t i = 0; i < 120; ++i) {
+    CHECK(a.run.agents.at(1)[i].estimate_m == b.run.agents.at(1)[i].estimate_m);
+    CHECK(a.run.agents.at(1)[i].estimate_m == c.run.agents.at(1)[i].estimate_m);
   }
-  CHECK(ma.rmse_m == mb.rmse_m);
-  CHECK(ma.anees == mb.anees);
-  CHECK(ma.pcrlb_rmse_m == mb.pcrlb_rmse_m);
-  CHECK(ma.error_m == mb.error_m);
-
-  Config other = config;
-  other.scenario.seed = 8;
-  const fs::path c = FreshDir("det_c");
-  const SimulationMetrics mc = RunSimulation(other, c.string());
-  CHECK(ReadText(a / "ranges.csv") != ReadText(c / "ranges.csv"));
-  CHECK(ma.rmse_m != mc.rmse_m);
-  fs::remove_all(a);
-  fs::remove_all(b);
-  fs::remove_all(c);
+  CHECK(a.run.agents.at(1)[50].estimate_m != d.run.agents.at(1)[50].estimate_m);
 }
 
-TEST_CASE("The simulation writes every artefact with the DESIGN.md headers", "[simulation]") {
-  const Config config = ParseConfig("scenario: {steps: 5}\nagents: {count: 3}\n", "inline");
+TEST_CASE("The simulation writes every artefact with the documented headers", "[simulation]") {
   const fs::path dir = FreshDir("headers");
-  RunSimulation(config, dir.string());
-  const auto first_line = [](const fs::path& p) {
-    std::ifstream in(p);
-    std::string line;
-    std::getline(in, line);
-    return line;
-  };
-  CHECK(first_line(dir / "target.csv") == "step,t,x_true,y_true");
-  CHECK(first_line(dir / "ranges.csv") == "step,agent_id,range,variance,sensor_x,sensor_y");
-  for (const char* agent : {"agent_1.csv", "agent_2.csv", "agent_3.csv"}) {
-    CHECK(first_line(dir / agent) ==
-          "step,t,x_est,y_est,p_xx,p_xy,p_yy,pos_x,pos_y,angle,alive,fused,rejected,dropped");
-  }
-  // One row per step in target.csv and every agent file; one range per agent and step.
-  CHECK(ReadCsv(dir / "target.csv").rows.size() == 5);
-  CHECK(ReadCsv(dir / "agent_2.csv").rows.size() == 5);
-  CHECK(ReadCsv(dir / "ranges.csv").rows.size() == 15);
+  Simulate(kFourAgents, dir.string());
+  CHECK(FirstLine(dir / "target.csv") == "step,t,x_true,y_true");
+  CHECK(FirstLine(dir / "ranges.csv") == "step,agent_id,range,variance,sensor_x,sensor_y");
+  // The contract's 13 columns first, then the extras.
+  CHECK(FirstLine(dir / "agent_1.csv").rfind(
+            "step,t,x_est,y_est,p_xx,p_xy,p_yy,pos_x,pos_y,angle,alive,fused,rejected", 0) == 0);
+  CHECK(FirstLine(dir / "metrics.csv").rfind("step,t,rows,", 0) == 0);
+  CHECK(deif::ReadAgentCsv((dir / "agent_4.csv").string()).size() == 120);
   fs::remove_all(dir);
 }
 
 TEST_CASE("Every agent equals a centralized EIF replayed over ranges.csv", "[simulation]") {
   const Config config = ParseConfig(kFourAgents, "inline");
   const fs::path dir = FreshDir("central");
-  RunSimulation(config, dir.string());
-
-  // Group the ranges by step, exactly as read back from disk.
-  const Csv ranges = ReadCsv(dir / "ranges.csv");
+  deif::sim::SimulationOptions options;
+  options.out_dir = dir.string();
+  RunSimulation(config, options);
+  // The ranges exactly as read back from disk, grouped by step, in ascending id.
   std::map<deif::StepIndex, std::vector<deif::RangeObservation>> by_step;
-  for (const auto& row : ranges.rows) {
+  for (const deif::RangeRow& row : deif::ReadRangesCsv((dir / "ranges.csv").string())) {
     deif::RangeObservation z;
-    z.agent_id = static_cast<int>(row[ranges.Column("agent_id")]);
-    z.range_m = row[ranges.Column("range")];
-    z.variance_m2 = row[ranges.Column("variance")];
-    z.p_sensor = deif::Vector2(row[ranges.Column("sensor_x")], row[ranges.Column("sensor_y")]);
-    by_step[static_cast<deif::StepIndex>(row[ranges.Column("step")])].push_back(z);
+    z.agent_id = row.agent_id;
+    z.range_m = row.range_m;
+    z.variance_m2 = row.variance_m2;
+    z.p_sensor = row.p_sensor;
+    by_step[row.step].push_back(z);
   }
   deif::CentralizedEif central(config.filter.motion_model, deif::InitialState(config),
                                deif::InitialCovariance(config), config.sensing);
@@ -170,129 +130,111 @@ TEST_CASE("Every agent equals a centralized EIF replayed over ranges.csv", "[sim
     central.Step(k, by_step[k]);
     central_estimates.push_back(central.filter().PositionEstimate());
   }
-
   for (int id = 1; id <= 4; ++id) {
-    const Csv agent = ReadCsv(dir / ("agent_" + std::to_string(id) + ".csv"));
-    REQUIRE(agent.rows.size() == central_estimates.size());
-    for (std::size_t i = 0; i < agent.rows.size(); ++i) {
+    const std::vector<AgentRow> rows = deif::ReadAgentCsv((dir / deif::AgentCsvName(id)).string());
+    REQUIRE(rows.size() == central_estimates.size());
+    for (std::size_t i = 0; i < rows.size(); ++i) {
       INFO("agent " << id << " step " << i + 1);
-      CHECK(agent.rows[i][agent.Column("x_est")] ==
-            Approx(central_estimates[i].x()).margin(1e-9).epsilon(0));
-      CHECK(agent.rows[i][agent.Column("y_est")] ==
-            Approx(central_estimates[i].y()).margin(1e-9).epsilon(0));
-      CHECK(agent.rows[i][agent.Column("fused")] == 4);
+      CHECK((rows[i].estimate_m - central_estimates[i]).cwiseAbs().maxCoeff() <= 1e-9);
+      CHECK(rows[i].fused == 4);
     }
   }
   fs::remove_all(dir);
 }
 
 TEST_CASE("The metrics agree with the artefacts they summarise", "[simulation]") {
-  const Config config = ParseConfig(kFourAgents, "inline");
-  const fs::path dir = FreshDir("metrics");
-  const SimulationMetrics m = RunSimulation(config, dir.string());
-  const Csv target = ReadCsv(dir / "target.csv");
+  const SimulationResult r = Simulate(kFourAgents);
   double sum_squared = 0.0;
   double max_error = 0.0;
   int samples = 0;
-  for (int id = 1; id <= 4; ++id) {
-    const Csv agent = ReadCsv(dir / ("agent_" + std::to_string(id) + ".csv"));
-    for (std::size_t i = 0; i < agent.rows.size(); ++i) {
-      const double dx = agent.rows[i][agent.Column("x_est")] - target.rows[i][2];
-      const double dy = agent.rows[i][agent.Column("y_est")] - target.rows[i][3];
-      sum_squared += dx * dx + dy * dy;
-      max_error = std::max(max_error, std::hypot(dx, dy));
+  for (const auto& [id, rows] : r.run.agents) {
+    for (const AgentRow& row : rows) {
+      const double e = (row.estimate_m - r.run.truth[static_cast<std::size_t>(row.step - 1)].p_true).norm();
+      sum_squared += e * e;
+      max_error = std::max(max_error, e);
       ++samples;
     }
   }
-  CHECK(m.steps == 120);
-  CHECK(m.final_alive == 4);
-  CHECK(m.error_m.size() == 120);
-  CHECK(m.pcrlb_m.size() == 120);
+  const auto& m = r.metrics;
+  CHECK(samples == 480);
+  CHECK(m.last_step == 120);
+  CHECK(m.final_agents == 4);
+  CHECK(m.per_step.size() == 120);
   CHECK(m.rmse_m == Approx(std::sqrt(sum_squared / samples)).epsilon(1e-12));
   CHECK(m.max_error_m == Approx(max_error).epsilon(1e-12));
+  CHECK(m.agreement_fraction == 1.0);  // a perfect network: every step bit-identical
   // The bound is below the achieved error, and the optimality ratio is a ratio.
   CHECK(m.pcrlb_rmse_m > 0.0);
   CHECK(m.pcrlb_rmse_m < m.rmse_m);
   CHECK(m.mean_optimality_ratio > 0.0);
   CHECK(m.mean_optimality_ratio <= 1.0);
-  fs::remove_all(dir);
 }
 
-TEST_CASE("After a kill the three survivors spread to gaps of 2 pi / 3", "[simulation]") {
-  // GIVEN four agents around a static target, agent 2 killed at step 50.
-  const Config config = ParseConfig(
+TEST_CASE("After a kill at step 50 the three survivors fuse three from step 50 and spread to "
+          "gaps of 2 pi / 3",
+          "[simulation]") {
+  const SimulationResult r = Simulate(
       "scenario: {steps: 250}\n"
       "target: {trajectory: static, start_m: [0, 0]}\n"
       "agents: {count: 4, control_law: voronoi}\n"
       "faults:\n"
-      "  - {step: 50, action: kill, agent: 2}\n",
-      "inline");
-  const fs::path dir = FreshDir("kill");
-  // WHEN the scenario runs to the end
-  const SimulationMetrics m = RunSimulation(config, dir.string());
-  // THEN agent 2 wrote its last row at step 49, and the others saw three members from 50.
-  const Csv killed = ReadCsv(dir / "agent_2.csv");
-  REQUIRE_FALSE(killed.rows.empty());
-  CHECK(killed.rows.back()[0] == 49);
+      "  - {step: 50, action: kill, agent: 2}\n");
+  // The fault lands on its exact step: agent 2 wrote its last row at step 49.
+  REQUIRE_FALSE(r.run.agents.at(2).empty());
+  CHECK(r.run.agents.at(2).back().step == 49);
   std::vector<double> final_angles;
   for (int id : {1, 3, 4}) {
-    const Csv agent = ReadCsv(dir / ("agent_" + std::to_string(id) + ".csv"));
-    REQUIRE(agent.rows.size() == 250);
-    CHECK(agent.rows[48][agent.Column("alive")] == 4);
-    CHECK(agent.rows[49][agent.Column("alive")] == 3);
-    CHECK(agent.rows[49][agent.Column("fused")] == 3);
-    // The angle about the estimate, recomputed from the written position and estimate.
-    const auto& last = agent.rows.back();
-    final_angles.push_back(std::atan2(last[agent.Column("pos_y")] - last[agent.Column("y_est")],
-                                      last[agent.Column("pos_x")] - last[agent.Column("x_est")]));
+    const auto& rows = r.run.agents.at(id);
+    REQUIRE(rows.size() == 250);
+    CHECK(rows[48].fused == 4);
+    CHECK(rows[49].fused == 3);
+    CHECK(rows[49].complete);
+    CHECK(rows[60].alive == 3);
+    final_angles.push_back(std::atan2(rows.back().position_m.y() - rows.back().estimate_m.y(),
+                                      rows.back().position_m.x() - rows.back().estimate_m.x()));
   }
   std::sort(final_angles.begin(), final_angles.end());
   const double gaps[] = {final_angles[1] - final_angles[0], final_angles[2] - final_angles[1],
                          2 * kPi - (final_angles[2] - final_angles[0])};
   for (const double gap : gaps) CHECK(std::abs(gap - 2 * kPi / 3) < kPi / 180);
-  CHECK(m.final_alive == 3);
-  CHECK(m.final_max_gap_error_rad < kPi / 180);
-  fs::remove_all(dir);
+  CHECK(r.metrics.final_agents == 3);
+  CHECK(r.metrics.final_max_gap_error_rad < kPi / 180);
+  CHECK(r.exit_codes.at("agent-2") == -9);
+  CHECK(r.exit_codes.at("target") == 0);
 }
 
-TEST_CASE("A stopped agent is absent until it continues", "[simulation]") {
-  const Config config = ParseConfig(
-      "scenario: {steps: 30}\n"
+TEST_CASE("A frozen agent is left out while frozen and, resumed, catches up exactly", "[simulation]") {
+  const SimulationResult r = Simulate(
+      "scenario: {steps: 40}\n"
       "agents: {count: 4}\n"
       "faults:\n"
       "  - {step: 10, action: stop, agent: 3}\n"
-      "  - {step: 20, action: cont, agent: 3}\n",
-      "inline");
-  const fs::path dir = FreshDir("stop");
-  const SimulationMetrics m = RunSimulation(config, dir.string());
-  const Csv agent3 = ReadCsv(dir / "agent_3.csv");
-  CHECK(agent3.rows.size() == 20);  // steps 1..9 and 20..30
-  for (const auto& row : agent3.rows) CHECK((row[0] < 10 || row[0] >= 20));
-  for (const auto& row : ReadCsv(dir / "ranges.csv").rows) {
-    if (row[1] == 3) CHECK((row[0] < 10 || row[0] >= 20));
+      "  - {step: 20, action: cont, agent: 3}\n");
+  for (const auto& row : r.run.ranges) {
+    if (row.agent_id == 3) CHECK((row.step < 10 || row.step >= 20));
   }
-  const Csv agent1 = ReadCsv(dir / "agent_1.csv");
-  CHECK(agent1.rows[8][agent1.Column("alive")] == 4);   // step 9
-  CHECK(agent1.rows[9][agent1.Column("alive")] == 3);   // step 10
-  CHECK(agent1.rows[19][agent1.Column("alive")] == 4);  // step 20
-  CHECK(m.final_alive == 4);
-  fs::remove_all(dir);
+  const auto& agent1 = r.run.agents.at(1);
+  CHECK(agent1[8].fused == 4);   // step 9
+  CHECK(agent1[9].fused == 3);   // step 10
+  CHECK(agent1[19].fused == 4);  // step 20: measured again
+  // Every agent agrees at every step they all wrote, the resumed one included.
+  CHECK(r.metrics.agreement_fraction == 1.0);
+  CHECK(r.counters.at(3).adoptions == 0);
+  CHECK(r.metrics.final_agents == 4);
 }
 
-TEST_CASE("A target restart drops every range of its step", "[simulation]") {
-  const Config config = ParseConfig(
-      "scenario: {steps: 10}\nagents: {count: 3}\nfaults:\n"
-      "  - {step: 5, action: restart_target}\n",
-      "inline");
-  const fs::path dir = FreshDir("restart");
-  RunSimulation(config, dir.string());
-  int ranges_at_5 = 0;
-  for (const auto& row : ReadCsv(dir / "ranges.csv").rows) ranges_at_5 += row[0] == 5 ? 1 : 0;
-  CHECK(ranges_at_5 == 0);
-  const Csv agent = ReadCsv(dir / "agent_1.csv");
-  CHECK(agent.rows[4][agent.Column("fused")] == 0);  // step 5
-  CHECK(agent.rows[5][agent.Column("fused")] == 3);  // step 6
-  fs::remove_all(dir);
+TEST_CASE("A target restart loses no step and changes no estimate", "[simulation]") {
+  const std::string base = "scenario: {steps: 30}\nagents: {count: 3}\n";
+  const SimulationResult plain = Simulate(base);
+  const SimulationResult restarted =
+      Simulate(base + "faults:\n  - {step: 12, action: restart_target}\n");
+  for (int id = 1; id <= 3; ++id) {
+    const auto& a = plain.run.agents.at(id);
+    const auto& b = restarted.run.agents.at(id);
+    REQUIRE(b.size() == 30);
+    for (std::size_t i = 0; i < a.size(); ++i) CHECK(a[i].estimate_m == b[i].estimate_m);
+  }
+  CHECK(restarted.exit_codes.at("target") == 0);
 }
 
 TEST_CASE("deif_sim rejects a bad config with exit 2, one line, and writes nothing",
@@ -307,13 +249,25 @@ TEST_CASE("deif_sim rejects a bad config with exit 2, one line, and writes nothi
                                 " 2>" + (dir / "stderr").string());
   CHECK(status == 2);
   const std::string err = ReadText(dir / "stderr");
-  CHECK(err == "deif_sim: error: " + config.string() +
-                   ":4: key 'agents.count': must be >= 2 (got 1)\n");
+  CHECK(err.rfind("deif_sim: error: " + config.string() + ":4: key 'agents.count': ", 0) == 0);
+  CHECK(std::count(err.begin(), err.end(), '\n') == 1);
   CHECK_FALSE(fs::exists(out));
   fs::remove_all(dir);
 }
 
-TEST_CASE("deif_sim runs a good config, exits 0 and writes every artefact",
+TEST_CASE("deif_sim refuses an output folder it cannot write, before running anything",
+          "[simulation][deif_sim]") {
+  const fs::path dir = FreshDir("cli_out");
+  fs::create_directories(dir);
+  const int status = RunCommand(std::string(DEIF_SIM_EXE) + " --config " + DEIF_SOURCE_DIR +
+                                "/configs/default.yaml --out /proc/deif_x >" +
+                                (dir / "out").string() + " 2>" + (dir / "err").string());
+  CHECK(status == 2);
+  CHECK(ReadText(dir / "err").find("cannot write to the folder '/proc/deif_x'") != std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST_CASE("deif_sim runs a good config with overrides, exits 0 and writes every artefact",
           "[simulation][deif_sim]") {
   const fs::path dir = FreshDir("cli_good");
   fs::create_directories(dir);
@@ -321,31 +275,41 @@ TEST_CASE("deif_sim runs a good config, exits 0 and writes every artefact",
   std::ofstream(config) << "scenario: {steps: 40, seed: 3}\nagents: {count: 3}\n";
   const fs::path out = dir / "run" / "nested";
   const int status = RunCommand(std::string(DEIF_SIM_EXE) + " --config " + config.string() +
-                                " --out " + out.string() + " --seed 11 --steps 30 --quiet >" +
+                                " --out " + out.string() +
+                                " --seed 11 --steps 30 --set agents.count=4 --quiet >" +
                                 (dir / "stdout").string() + " 2>&1");
   CHECK(status == 0);
-  for (const char* file : {"target.csv", "ranges.csv", "agent_1.csv", "agent_2.csv",
-                           "agent_3.csv", "summary.json"}) {
+  for (const char* file : {"target.csv", "ranges.csv", "agent_1.csv", "agent_4.csv",
+                           "metrics.csv", "summary.json"}) {
     INFO(file);
     CHECK(fs::exists(out / file));
   }
   const nlohmann::json summary = nlohmann::json::parse(ReadText(out / "summary.json"));
-  CHECK(summary.at("seed") == 11);
+  CHECK(summary.at("seeds").at("scenario") == 11);
   CHECK(summary.at("config").at("source") == config.string());
+  CHECK(summary.at("ok") == true);
   // The YAML in the summary is a config that parses, with the overrides applied.
   const Config used = ParseConfig(summary.at("config").at("yaml").get<std::string>(), "summary");
   CHECK(used.scenario.steps == 30);
   CHECK(used.scenario.seed == 11U);
-  CHECK(summary.at("processes").at(0).at("name") == "deif_sim");
-  CHECK(summary.at("processes").at(0).at("exit_status") == 0);
+  CHECK(used.agents.count == 4);
   const auto& metrics = summary.at("metrics");
   for (const char* key : {"rmse_m", "max_error_m", "final_max_gap_error_rad",
-                          "mean_optimality_ratio", "pcrlb_rmse_m", "anees"}) {
+                          "mean_optimality_ratio", "pcrlb_rmse_m", "anees", "agreement_fraction"}) {
     INFO(key);
     CHECK(metrics.at(key).is_number());
   }
-  CHECK(metrics.at("final_alive") == 3);
-  CHECK(metrics.at("steps") == 30);
-  CHECK(ReadCsv(out / "target.csv").rows.size() == 30);
+  CHECK(metrics.at("final_agents") == 4);
+  CHECK(metrics.at("last_step") == 30);
+  CHECK(deif::ReadTargetCsv((out / "target.csv").string()).size() == 30);
+
+  // --evaluate recomputes the same metrics from the artefacts alone.
+  const int evaluated = RunCommand(std::string(DEIF_SIM_EXE) + " --config " + config.string() +
+                                   " --set agents.count=4 --evaluate " + out.string() + " >" +
+                                   (dir / "evaluated.json").string());
+  CHECK(evaluated == 0);
+  const nlohmann::json again = nlohmann::json::parse(ReadText(dir / "evaluated.json"));
+  CHECK(again.at("rmse_m") == metrics.at("rmse_m"));
+  CHECK(again.at("agreement_fraction") == metrics.at("agreement_fraction"));
   fs::remove_all(dir);
 }

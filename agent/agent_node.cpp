@@ -1,0 +1,158 @@
+#include "agent/agent_node.hpp"
+
+#include <algorithm>
+#include <filesystem>
+#include <type_traits>
+
+namespace deif::agent {
+
+namespace {
+
+constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
+
+protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
+                                                 std::uint64_t token) {
+  protocol::AgentProtocol::Options options;
+  options.run = protocol::RunTokenOf(context.run_name);
+  options.instance_token = token;
+  return options;
+}
+
+void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text) {
+  switch (level) {
+    case protocol::LogLevel::kDebug: log.debug("{}", text); break;
+    case protocol::LogLevel::kInfo: log.info("{}", text); break;
+    case protocol::LogLevel::kWarn: log.warn("{}", text); break;
+    case protocol::LogLevel::kError: log.error("{}", text); break;
+  }
+}
+
+}  // namespace
+
+AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
+    : context_(context),
+      config_(context.config),
+      id_(id),
+      instance_token_(dds::RandomInstanceToken()),
+      node_(context.config, "agent-" + std::to_string(id), context.run_name),
+      protocol_(context.config, id, ProtocolOptions(context, instance_token_)) {
+  node_.AddWriter(dds::Topic::kContribution);
+  node_.AddWriter(dds::Topic::kAgentState);
+  node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
+  node_.AddReader({dds::Topic::kContribution, {}});
+  node_.AddReader({dds::Topic::kAgentState, id_});   // only states claiming this id: duplicates
+  context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
+                     config_.network.domain_id, instance_token_);
+}
+
+void AgentNode::Stop() {
+  stop_requested_.store(true);
+  node_.Wake();
+}
+
+bool AgentNode::AnotherProcessHasThisId() {
+  // agent_state is transient-local: a live process with this id shows up within a couple of
+  // participant announcements. Our own writers are not alive to anyone yet.
+  const double wait_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
+  const auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
+                                                std::chrono::duration<double>(wait_s));
+  while (!stop_requested_ && dds::Clock::now() < deadline) {
+    for (const dds::Event& event : node_.Wait(deadline)) {
+      const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event);
+      if (state != nullptr && state->msg.agent_id == id_ &&
+          state->msg.run == protocol::RunTokenOf(context_.run_name) &&
+          state->msg.instance_token != instance_token_) {
+        context_.log->error("agent id {} is already live in run '{}' (writer {}, token {:016x})", id_,
+                            context_.run_name, protocol::ToString(state->from),
+                            state->msg.instance_token);
+        return true;
+      }
+    }
+  }
+  return false;
+}
+
+int AgentNode::Run() {
+  if (AnotherProcessHasThisId()) return protocol::kExitDuplicate;
+  if (stop_requested_) return protocol::kExitOk;
+  node_.StartLiveliness();  // only now do our writers become alive to the peers
+  if (!context_.options.out_dir.empty()) {
+    csv_.emplace((std::filesystem::path(context_.options.out_dir) / AgentCsvName(id_)).string(),
+                 context_.options.append ? CsvMode::kAppend : CsvMode::kTruncate);
+  } else {
+    context_.log->warn("no --out folder: {} is not written", AgentCsvName(id_));
+  }
+  protocol_.Start(dds::ToSeconds(dds::Clock::now()));
+  Execute(protocol_.TakeActions());
+  context_.log->info("published the initial state; waiting for the target");
+
+  while (!stop_requested_ && !protocol_.finished()) {
+    auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
+                                            std::chrono::duration<double>(kMaxWaitS));
+    if (const auto next = protocol_.NextDeadline()) deadline = std::min(deadline, dds::FromSeconds(*next));
+    const std::vector<dds::Event> events = node_.Wait(deadline);
+    const double now_s = dds::ToSeconds(dds::Clock::now());
+    for (const dds::Event& event : events) Dispatch(event, now_s);
+    protocol_.OnTimer(now_s);
+    Execute(protocol_.TakeActions());
+  }
+  if (stop_requested_) {
+    context_.log->info("stopped after step {}", protocol_.last_written_step());
+    return protocol::kExitOk;
+  }
+  // Let reliable peers receive our last samples before the writers go away (bounded: a
+  // peer that died meanwhile never acknowledges).
+  const bool acknowledged = node_.WaitForAcknowledgments(0.5);
+  const auto& c = protocol_.counters();
+  context_.log->info("rejected {}, dropped {}, late {}, deadline misses {}, adoptions {}, merges {}; "
+                     "last samples {}acknowledged",
+                     c.rejected, c.dropped, c.late, c.deadline_misses, c.adoptions, c.merges,
+                     acknowledged ? "" : "not all ");
+  for (const auto& [reason, count] : c.by_reason) context_.log->info("  {}: {}", reason, count);
+  return exit_code_.value_or(protocol::kExitOk);
+}
+
+void AgentNode::Dispatch(const dds::Event& event, double now_s) {
+  if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
+    protocol_.OnRange(range->msg, range->from, now_s);
+  } else if (const auto* c = std::get_if<dds::Received<protocol::ContributionMsg>>(&event)) {
+    protocol_.OnContribution(c->msg, c->from, now_s);
+  } else if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+    if (state->msg.instance_token != instance_token_ &&
+        state->msg.run == protocol::RunTokenOf(context_.run_name)) {
+      context_.log->warn("another process publishes states as agent {} (writer {}); its "
+                         "contributions are refused while ours live",
+                         id_, protocol::ToString(state->from));
+    }
+  } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
+    if (change->topic == dds::Topic::kContribution || change->topic == dds::Topic::kRange) {
+      protocol_.OnWriterLiveliness(change->writer, change->alive, now_s);
+    }
+  }
+}
+
+void AgentNode::Execute(std::vector<protocol::AgentAction> actions) {
+  for (protocol::AgentAction& action : actions) {
+    std::visit(
+        [this](auto& a) {
+          using A = std::decay_t<decltype(a)>;
+          namespace act = protocol::agent_action;
+          if constexpr (std::is_same_v<A, act::PublishContribution>) {
+            node_.Write(a.msg);
+          } else if constexpr (std::is_same_v<A, act::PublishState>) {
+            node_.Write(a.msg);
+          } else if constexpr (std::is_same_v<A, act::WriteRow>) {
+            if (csv_) csv_->Write(a.row);
+          } else if constexpr (std::is_same_v<A, act::Log>) {
+            LogAt(*context_.log, a.level, a.text);
+          } else if constexpr (std::is_same_v<A, act::Finish>) {
+            exit_code_ = a.exit_code;
+            LogAt(*context_.log, a.exit_code == 0 ? protocol::LogLevel::kInfo : protocol::LogLevel::kError,
+                  a.reason);
+          }
+        },
+        action);
+  }
+}
+
+}  // namespace deif::agent

@@ -1,0 +1,42 @@
+// deif_agent's application: the thin DDS adapter around the agent's protocol
+// (common/protocol/agent_protocol.hpp). It only delivers events and carries out actions:
+// every number it publishes or writes comes from the protocol, so its estimates equal those
+// of the in-process simulation for the same inputs.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <optional>
+
+#include "common/artefacts/artefacts.hpp"
+#include "common/protocol/agent_protocol.hpp"
+#include "dds/application.hpp"
+#include "dds/node.hpp"
+
+namespace deif::agent {
+
+class AgentNode : public dds::Application {
+ public:
+  // Creates every DDS entity. Throws std::runtime_error when one cannot be created.
+  AgentNode(dds::ProcessContext& context, AgentId id);
+  int Run() override;
+  void Stop() override;
+
+ private:
+  // Another live process with this id (its state, with another instance token) refuses us.
+  bool AnotherProcessHasThisId();
+  void Dispatch(const dds::Event& event, double now_s);
+  void Execute(std::vector<protocol::AgentAction> actions);
+
+  dds::ProcessContext& context_;
+  const Config& config_;
+  const AgentId id_;
+  const std::uint64_t instance_token_;
+  dds::Node node_;
+  protocol::AgentProtocol protocol_;
+  std::optional<AgentCsv> csv_;
+  std::atomic<bool> stop_requested_{false};
+  std::optional<int> exit_code_;
+};
+
+}  // namespace deif::agent

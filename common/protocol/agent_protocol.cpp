@@ -1,0 +1,801 @@
+#include "common/protocol/agent_protocol.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <iterator>
+#include <limits>
+
+#include "common/core/check.hpp"
+#include "common/core/control_law.hpp"
+#include "common/protocol/motion.hpp"
+#include "common/protocol/validation.hpp"
+
+namespace deif::protocol {
+
+namespace {
+
+bool SameInfoState(const InfoState& a, const InfoState& b) {
+  return a.y.size() == b.y.size() && a.Y.rows() == b.Y.rows() && a.y == b.y && a.Y == b.Y;
+}
+
+std::string Join(const std::vector<AgentId>& ids) {
+  std::string out;
+  for (AgentId id : ids) out += (out.empty() ? "" : " ") + std::to_string(id);
+  return out;
+}
+
+}  // namespace
+
+AgentProtocol::AgentProtocol(const Config& config, AgentId id, Options options)
+    : config_(config),
+      id_(id),
+      options_(options),
+      model_(config.filter.motion_model),
+      initial_(ToInfoState(InitialState(config), InitialCovariance(config))),
+      gate_sigma_(options.innovation_gate_sigma > 0.0 ? options.innovation_gate_sigma
+                                                      : config.filter.innovation_gate_sigma),
+      position_m_(Vector2::Zero()),
+      angle_rad_(0.0) {
+  DEIF_THROW_UNLESS(ValidAgentId(id, config), "agent id " + std::to_string(id) +
+                                                  " is outside 1.." +
+                                                  std::to_string(config.agents.count));
+  angle_rad_ = InitialAngle(config, id);  // about the initial centre
+  position_m_ = PointOnCircle(config.agents.initial_centre_m, config.agents.radius_m, angle_rad_);
+}
+
+// ---------------------------------------------------------------------------------------
+// Events
+
+void AgentProtocol::Start(double now_s) {
+  if (started_) return;
+  started_ = true;
+  last_target_contact_s_ = now_s;
+  // Step 0: where this agent starts, so the target can measure its first range.
+  StateMsg msg = MakeState(0, initial_, 0, true);
+  msg.alive = config_.agents.count;
+  Publish(msg);
+}
+
+void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double now_s) {
+  if (finished_ || !started_) return;
+  if (msg.run != options_.run) {
+    Reject("a process of another run", "other_run");
+    return;
+  }
+  if (const char* reason = ValidateRange(msg, config_, id_)) {
+    Reject("the target", reason);
+    return;
+  }
+  // One target per run: the first writer of our ranges. Another writer is refused while the
+  // first lives; once it is gone, a new one is the restarted target.
+  if (!target_writer_) {
+    target_writer_ = from;
+    Log(LogLevel::kInfo, "target found (writer " + ToString(from) + ")");
+  } else if (*target_writer_ != from) {
+    if (target_alive_) {
+      Reject("a second target", "second_target");
+      return;
+    }
+    Log(LogLevel::kInfo, "a new target writer " + ToString(from) + " (the target restarted)");
+    target_writer_ = from;
+  }
+  target_alive_ = true;
+  if (target_silent_logged_) {
+    Log(LogLevel::kInfo, "measurements from the target resumed at step " + std::to_string(msg.step));
+  }
+  last_target_contact_s_ = now_s;
+  target_silent_logged_ = false;
+  // The target measures from a position this process published. A range from the target's
+  // history that was measured for an earlier process with our id is stale.
+  if (msg.measured && !PublishedPosition(msg.p_sensor)) {
+    Drop("the target", "stale_range");
+    return;
+  }
+  const bool opened = !records_.empty() && msg.step <= records_.rbegin()->first;
+  if (opened || msg.step <= written_) {
+    auto it = records_.find(msg.step);
+    if (it == records_.end()) {
+      Drop("the target", "range_too_old");
+      return;
+    }
+    ApplyRange(it->second, msg);
+    Advance(now_s);
+    return;
+  }
+  if (pending_ranges_.count(msg.step) > 0) {
+    Drop("the target", "duplicate_range");
+    return;
+  }
+  pending_ranges_[msg.step] = PendingRange{msg, now_s};
+  Advance(now_s);
+}
+
+void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& from,
+                                   double now_s) {
+  if (finished_ || !started_) return;
+  const std::string who = "agent " + std::to_string(msg.agent_id);
+  if (msg.run != options_.run) {
+    Reject("a process of another run", "other_run");
+    return;
+  }
+  if (!AcceptIdentity(msg, from)) return;
+  if (const char* reason = ValidateContributionMsg(msg, config_)) {
+    Reject(who, reason);
+    return;
+  }
+  Peer& peer = peers_[msg.agent_id];
+  if (!peer.alive) {
+    peer.alive = true;  // a sample from its writer: it lives
+    Log(LogLevel::kInfo, who + " is a member; members now " + std::to_string(Members().size()));
+  }
+  if (!peer.last_position || peer.last_position->first < msg.step - 1) {
+    peer.last_position = std::make_pair(msg.step - 1, msg.p_sensor);
+  }
+
+  Held held;
+  held.msg = msg;
+  held.contribution.agent_id = msg.agent_id;
+  held.contribution.step = msg.step;
+  held.contribution.info_vector = msg.info_vector;
+  held.contribution.info_matrix = msg.info_matrix;
+
+  auto record = records_.find(msg.step);
+  if (record != records_.end()) {
+    if (record->second.held.count(msg.agent_id) > 0) {
+      Drop(who, "duplicate");
+      return;
+    }
+    Hold(record->second, std::move(held), /*count_late=*/true);
+    Advance(now_s);
+    return;
+  }
+  if ((!records_.empty() && msg.step < records_.begin()->first) || msg.step <= written_) {
+    Drop(who, "too_old");
+    return;
+  }
+  // Ahead of this agent: held while within the history plus the fusion window of the last
+  // step written (after a freeze the peers' backlog can arrive before the target's).
+  if (ever_opened_ && msg.step > written_ + config_.network.history_steps +
+                                     config_.network.fusion_window_steps) {
+    Drop(who, "too_far_ahead");
+    return;
+  }
+  auto& slot = early_[msg.step];
+  if (slot.count(msg.agent_id) > 0) {
+    Drop(who, "duplicate");
+    return;
+  }
+  slot.emplace(msg.agent_id, std::move(held));
+  // Before the first step only the newest few steps are kept (a joining agent starts at the
+  // newest step the target announces).
+  const std::size_t keep = static_cast<std::size_t>(config_.network.fusion_window_steps) + 2;
+  while (!ever_opened_ && early_.size() > keep) early_.erase(early_.begin());
+  Advance(now_s);
+}
+
+void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
+  if (alive) {
+    alive_writers_.insert(writer);
+  } else {
+    alive_writers_.erase(writer);
+  }
+  if (finished_ || !started_) return;
+  if (target_writer_ && writer == *target_writer_) {
+    target_alive_ = alive;
+    LogOnce(alive ? LogLevel::kInfo : LogLevel::kWarn,
+            std::string("target ") + (alive ? "alive" : "lost") + std::to_string(written_),
+            alive ? "the target is alive" : "the target is lost (liveliness)");
+    return;
+  }
+  auto bound = writer_ids_.find(writer);
+  if (bound == writer_ids_.end()) return;
+  Peer& peer = peers_[bound->second];
+  if (!peer.writer || *peer.writer != writer || peer.alive == alive) return;
+  peer.alive = alive;
+  if (!alive) peer.lost_at_s = now_s;
+  const std::string members = std::to_string(Members().size());
+  if (alive) {
+    Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " is alive again; members now " + members);
+  } else {
+    Log(LogLevel::kWarn, "agent " + std::to_string(bound->second) + " lost (liveliness); members now " + members);
+  }
+  Advance(now_s);
+}
+
+void AgentProtocol::OnTimer(double now_s) {
+  if (finished_ || !started_) return;
+  Advance(now_s);
+  if (finished_) return;
+  const double silent_s = now_s - last_target_contact_s_;
+  if (silent_s < Patience()) return;
+  if (!ever_opened_) {
+    Finish(kExitRuntimeError, "no range from the target within " + std::to_string(Patience()) +
+                                  " s (network.start_timeout_s + step_timeout_s); is a target "
+                                  "of this run up?");
+  } else if (!RealTime()) {
+    Finish(kExitRuntimeError, "the target has been silent for " + std::to_string(silent_s) +
+                                  " s after step " + std::to_string(written_) +
+                                  " (network.start_timeout_s)");
+  } else if (!target_silent_logged_) {
+    target_silent_logged_ = true;  // real time: keep stepping on the clock
+    Log(LogLevel::kWarn, "no measurements from the target since step " + std::to_string(written_) +
+                             "; stepping on the clock (prediction only)");
+  }
+}
+
+std::optional<double> AgentProtocol::NextDeadline() const {
+  if (finished_ || !started_) return std::nullopt;
+  double t = last_target_contact_s_ + Patience();
+  if (target_silent_logged_) t = std::numeric_limits<double>::infinity();
+  if (open_) {
+    t = std::min(t, records_.rbegin()->second.deadline_s);
+  } else if (RealTime() && clock_sync_) {
+    t = std::min(t, ExpectedStart(written_ + 1) +
+                        config_.network.deadline_fraction * config_.scenario.period_s);
+  }
+  if (!std::isfinite(t)) return std::nullopt;
+  return t;
+}
+
+std::vector<AgentAction> AgentProtocol::TakeActions() {
+  std::vector<AgentAction> out;
+  out.swap(actions_);
+  return out;
+}
+
+std::optional<InfoState> AgentProtocol::PosteriorOf(StepIndex k) const {
+  if (k == 0) return initial_;
+  auto it = records_.find(k);
+  if (it == records_.end() || it->second.awaiting_basis) return std::nullopt;
+  return it->second.posterior;
+}
+
+std::set<AgentId> AgentProtocol::Members() const {
+  std::set<AgentId> members{id_};
+  for (const auto& [peer_id, peer] : peers_) {
+    if (peer.writer && peer.alive) members.insert(peer_id);
+  }
+  return members;
+}
+
+// ---------------------------------------------------------------------------------------
+// Steps
+
+void AgentProtocol::Advance(double now_s) {
+  while (!finished_) {
+    if (open_) {
+      if (!CanFinish(records_.rbegin()->second, now_s)) break;
+      FinishStep(now_s);
+      continue;
+    }
+    const StepIndex next = written_ + 1;
+    if (next > config_.scenario.steps) {
+      Finish(kExitOk, "run over after step " + std::to_string(written_));
+      break;
+    }
+    pending_ranges_.erase(pending_ranges_.begin(), pending_ranges_.lower_bound(next));
+    const StepIndex gap_limit = next + config_.network.history_steps;
+    if (!ever_opened_ || (!pending_ranges_.empty() && pending_ranges_.begin()->first > gap_limit)) {
+      if (pending_ranges_.empty()) break;
+      // Join, or rejoin after an absence longer than the history, at the newest step the
+      // target announced. Without usable history the posterior is adopted from a peer.
+      const auto newest = std::prev(pending_ranges_.end());
+      const StepIndex k = newest->first;
+      const PendingRange range = newest->second;
+      pending_ranges_.clear();
+      if (ever_opened_) {
+        Log(LogLevel::kWarn, "missed steps " + std::to_string(next) + ".." + std::to_string(k - 1) +
+                                 " (more than network.history_steps): rejoining at step " +
+                                 std::to_string(k));
+      }
+      records_.clear();
+      early_.erase(early_.begin(), early_.lower_bound(k));
+      written_ = k - 1;
+      needs_basis_ = k > 1;
+      OpenStep(k, range, range.arrival_s);
+      continue;
+    }
+    auto it = pending_ranges_.find(next);
+    if (it != pending_ranges_.end()) {
+      const PendingRange range = it->second;
+      pending_ranges_.erase(it);
+      OpenStep(next, range, range.arrival_s);
+      continue;
+    }
+    if (!pending_ranges_.empty()) {
+      // A later step is announced but this one never will be (the target's history no
+      // longer holds it): take the step without a range.
+      OpenStep(next, std::nullopt, now_s);
+      continue;
+    }
+    if (RealTime() && clock_sync_) {
+      const double start_s = ExpectedStart(next);
+      const double deadline_s =
+          start_s + config_.network.deadline_fraction * config_.scenario.period_s;
+      if (now_s >= deadline_s) {
+        // Real time: the step's range has not come by its deadline (lost, late, or the
+        // target is cut off): the step runs on the clock, and a range that comes later is
+        // fused late.
+        OpenStep(next, std::nullopt, start_s);
+        continue;
+      }
+    }
+    break;
+  }
+}
+
+void AgentProtocol::OpenStep(StepIndex k, const std::optional<PendingRange>& range,
+                             double start_s) {
+  Record& r = records_[k];
+  r.step = k;
+  r.start_s = start_s;
+  if (range) {
+    r.deadline_s = start_s + (RealTime() ? config_.network.deadline_fraction * config_.scenario.period_s
+                                         : config_.network.step_timeout_s);
+    if (RealTime()) clock_sync_ = std::make_pair(k, range->arrival_s);
+  } else {
+    r.deadline_s = RealTime() ? start_s + config_.network.deadline_fraction * config_.scenario.period_s
+                              : start_s;
+  }
+  ever_opened_ = true;
+  open_ = true;
+  if (range) {
+    r.roll_call = range->msg.roll_call;
+    if (range->msg.measured) {
+      RangeObservation z;
+      z.agent_id = id_;
+      z.range_m = range->msg.range_m;
+      z.variance_m2 = range->msg.variance_m2;
+      z.p_sensor = range->msg.p_sensor;
+      r.own_range = z;
+    }
+  }
+  auto early = early_.find(k);
+  if (early != early_.end()) {
+    for (auto& [peer_id, held] : early->second) {
+      if (r.roll_call && !std::binary_search(r.roll_call->begin(), r.roll_call->end(), peer_id)) {
+        Reject("agent " + std::to_string(peer_id), "not_in_roll_call");
+        continue;
+      }
+      r.held.emplace(peer_id, std::move(held));
+    }
+    early_.erase(early);
+  }
+  if (needs_basis_) {
+    r.awaiting_basis = true;
+    TryAdopt(r);
+    return;
+  }
+  Recompute(k);
+  if (r.own_range) EmitOwnContribution(r);
+}
+
+bool AgentProtocol::IsComplete(const Record& r) const {
+  if (!r.roll_call || r.awaiting_basis) return false;
+  for (AgentId id : *r.roll_call) {
+    if (r.held.count(id) == 0) return false;
+  }
+  return true;
+}
+
+bool AgentProtocol::CanFinish(const Record& r, double now_s) const {
+  if (IsComplete(r) || now_s >= r.deadline_s) return true;
+  if (RealTime() || r.awaiting_basis) return false;
+  if (!r.roll_call) return true;  // lock-step without a range: nobody to wait for
+  // Lock-step: wait for every roll-call member, except one seen lost since the step began
+  // (it died in the step). One this agent saw lost before was seen alive again by the target,
+  // whose roll call is newer: it is waited for (up to the step timeout).
+  for (AgentId id : *r.roll_call) {
+    if (r.held.count(id) > 0) continue;
+    if (id == id_) return false;
+    auto peer = peers_.find(id);
+    if (peer != peers_.end() && peer->second.writer && !peer->second.alive &&
+        peer->second.lost_at_s > r.start_s) {
+      continue;
+    }
+    return false;
+  }
+  return true;
+}
+
+void AgentProtocol::FinishStep(double now_s) {
+  (void)now_s;
+  Record& r = records_.rbegin()->second;
+  if (r.awaiting_basis) {
+    // Nobody to adopt from by the deadline: continue from this agent's own estimate.
+    r.awaiting_basis = false;
+    needs_basis_ = false;
+    Log(LogLevel::kWarn, "step " + std::to_string(r.step) +
+                             ": no peer posterior to adopt; continuing from this agent's own");
+    Recompute(r.step);
+    if (r.own_range && !r.own_sent) EmitOwnContribution(r);
+  }
+  const bool complete = IsComplete(r);
+  if (!complete) ++counters_.deadline_misses;
+  const int dim = model_.StateDim();
+  if (!IsValidInfoState(r.posterior, dim)) {
+    // Never publish or write a non-finite estimate: say so and adopt a peer's next time.
+    Log(LogLevel::kError, "step " + std::to_string(r.step) +
+                              ": the estimate is not finite or not positive definite; "
+                              "adopting a peer's posterior at the next step");
+    needs_basis_ = true;
+    r.written = true;
+    written_ = r.step;
+    open_ = false;
+    records_.clear();
+    return;
+  }
+  const Eif posterior(model_, r.posterior);
+  const Vector2 p_estimate = posterior.PositionEstimate();  // x(k|k)
+  // A newer step is already announced: this one is caught up after a freeze; the agent
+  // does not move for it (it did not move while frozen).
+  const bool catching_up = !pending_ranges_.empty() && pending_ranges_.rbegin()->first > r.step;
+  if (!catching_up) {
+    // The ring of this step: the roll call (or, without one, everyone fused), each at its
+    // position of step k-1, the one its range was measured from.
+    std::map<AgentId, Vector2> positions;
+    positions[id_] = position_m_;
+    std::vector<AgentId> ring_ids;
+    if (r.roll_call) {
+      ring_ids = *r.roll_call;
+    } else {
+      for (const auto& [peer_id, held] : r.held) ring_ids.push_back(peer_id);
+    }
+    for (AgentId member : ring_ids) {
+      if (member == id_) continue;
+      auto held = r.held.find(member);
+      if (held != r.held.end()) {
+        positions[member] = held->second.msg.p_sensor;
+        continue;
+      }
+      auto peer = peers_.find(member);
+      if (peer != peers_.end() && peer->second.last_position) {
+        positions[member] = peer->second.last_position->second;
+      }
+    }
+    const MotionResult motion = MoveOnRing(config_, id_, p_estimate, position_m_, positions);
+    position_m_ = motion.position_m;
+    angle_rad_ = motion.angle_rad;
+  } else {
+    angle_rad_ = AngleAbout(p_estimate, position_m_);
+  }
+
+  Publish(MakeState(r.step, r.posterior, r.fused, complete));
+
+  AgentRow row;
+  row.step = r.step;
+  row.t_s = static_cast<double>(r.step) * config_.scenario.dt_s;
+  row.estimate_m = p_estimate;
+  row.covariance = posterior.PositionCovariance();
+  row.position_m = position_m_;
+  row.angle_rad = angle_rad_;
+  row.alive = static_cast<int>(Members().size());
+  row.fused = r.fused;
+  row.rejected = static_cast<long>(counters_.rejected);
+  row.dropped = static_cast<long>(counters_.dropped);
+  row.late = static_cast<long>(counters_.late);
+  row.deadline_misses = static_cast<long>(counters_.deadline_misses);
+  row.complete = complete;
+  actions_.push_back(agent_action::WriteRow{row});
+  if (!complete && r.roll_call) {
+    std::vector<AgentId> missing;
+    for (AgentId id : *r.roll_call) {
+      if (r.held.count(id) == 0) missing.push_back(id);
+    }
+    LogOnce(LogLevel::kWarn, "incomplete",
+            "step " + std::to_string(r.step) + ": fused without every member of the roll call "
+            "(missing: " + Join(missing) + "); late contributions are fused into their step "
+            "(logged once)");
+  }
+
+  r.written = true;
+  written_ = r.step;
+  open_ = false;
+  Trim();
+  if (written_ >= config_.scenario.steps) {
+    Finish(kExitOk, "run over after step " + std::to_string(written_));
+  }
+}
+
+void AgentProtocol::ApplyRange(Record& r, const RangeMsg& msg) {
+  if (!r.roll_call) SetRollCall(r, msg.roll_call);
+  if (msg.measured && !r.own_range) {
+    RangeObservation z;
+    z.agent_id = id_;
+    z.range_m = msg.range_m;
+    z.variance_m2 = msg.variance_m2;
+    z.p_sensor = msg.p_sensor;
+    r.own_range = z;
+    if (!r.awaiting_basis) {
+      EmitOwnContribution(r);
+      if (r.written) {
+        LogOnce(LogLevel::kInfo, "late range",
+                "step " + std::to_string(r.step) + ": its range came after the step was written; "
+                "the contribution is sent late and fused into its step (logged once)");
+      }
+    }
+  }
+}
+
+void AgentProtocol::SetRollCall(Record& r, std::vector<AgentId> roll_call) {
+  r.roll_call = std::move(roll_call);
+  bool changed = false;
+  for (auto it = r.held.begin(); it != r.held.end();) {
+    if (!std::binary_search(r.roll_call->begin(), r.roll_call->end(), it->first)) {
+      Reject("agent " + std::to_string(it->first), "not_in_roll_call");
+      it = r.held.erase(it);
+      changed = true;
+    } else {
+      ++it;
+    }
+  }
+  if (changed) Recompute(r.step);
+}
+
+void AgentProtocol::EmitOwnContribution(Record& r) {
+  const RangeObservation& z = *r.own_range;
+  const Eif prior(model_, r.prior);
+  const Vector2 p_pred = prior.PositionEstimate();  // x(k|k-1): the linearisation point
+  // eqs (4.49)-(4.51) at this agent's own prediction.
+  Contribution c = ComputeContribution(r.step, z, p_pred, config_.sensing);
+  if (gate_sigma_ > 0.0) {
+    // Innovation gate: |z - h(x(k|k-1))| against gate * sqrt(H P(k|k-1) H^T + R).
+    RowVector2 H;
+    const double innovation = z.range_m - MeasureRange(p_pred, z.p_sensor, config_.sensing, &H);
+    const double S = (H * prior.PositionCovariance() * H.transpose())(0, 0) + z.variance_m2;
+    if (innovation * innovation > gate_sigma_ * gate_sigma_ * S) {
+      c.info_vector.setZero();
+      c.info_matrix.setZero();
+      ++counters_.by_reason["gated: own range failed the innovation gate"];
+      LogOnce(LogLevel::kWarn, "gate",
+              "step " + std::to_string(r.step) + ": the range " + std::to_string(z.range_m) +
+                  " m is " + std::to_string(std::abs(innovation) / std::sqrt(S)) +
+                  " sigma from the prediction (gate " + std::to_string(gate_sigma_) +
+                  "): sent as an empty contribution (logged once)");
+    }
+  }
+  ContributionMsg msg;
+  msg.run = options_.run;
+  msg.agent_id = id_;
+  msg.instance_token = options_.instance_token;
+  msg.step = r.step;
+  msg.info_vector = c.info_vector;
+  msg.info_matrix = c.info_matrix;
+  msg.p_sensor = z.p_sensor;
+  msg.basis = BaseOf(r);
+  msg.merge_request = merge_pending_;
+  merge_pending_ = false;
+  actions_.push_back(agent_action::PublishContribution{msg});
+  r.own_sent = true;
+  Held held;
+  held.msg = std::move(msg);
+  held.contribution = c;
+  Hold(r, std::move(held), /*count_late=*/false);
+}
+
+bool AgentProtocol::TryAdopt(Record& r) {
+  if (!r.awaiting_basis) return false;
+  for (const auto& [peer_id, held] : r.held) {
+    if (peer_id == id_) continue;
+    // The lowest-id contributor of this step: every rejoiner picks the same one.
+    r.basis = held.msg.basis;
+    r.awaiting_basis = false;
+    needs_basis_ = false;
+    ++counters_.adoptions;
+    Log(LogLevel::kWarn, "step " + std::to_string(r.step) + ": adopted agent " +
+                             std::to_string(peer_id) + "'s posterior of step " +
+                             std::to_string(r.step - 1) + " (no usable history of its own)");
+    Recompute(r.step);
+    if (r.own_range && !r.own_sent) EmitOwnContribution(r);
+    return true;
+  }
+  return false;
+}
+
+void AgentProtocol::Hold(Record& r, Held held, bool count_late) {
+  const AgentId peer_id = held.msg.agent_id;
+  if (r.roll_call && !std::binary_search(r.roll_call->begin(), r.roll_call->end(), peer_id)) {
+    Reject("agent " + std::to_string(peer_id), "not_in_roll_call");
+    return;
+  }
+  r.held.emplace(peer_id, std::move(held));
+  if (r.written && count_late) ++counters_.late;
+  if (r.awaiting_basis) {
+    TryAdopt(r);
+    return;
+  }
+  Recompute(r.step);
+}
+
+InfoState AgentProtocol::BaseOf(Record& r) {
+  // A merge requested by any contribution of this step: the covariance intersection of
+  // every distinct posterior carried by the step's contributions, folded in ascending id.
+  bool merge = false;
+  for (const auto& [peer_id, held] : r.held) merge = merge || held.msg.merge_request;
+  if (merge) {
+    std::vector<const InfoState*> distinct;
+    for (const auto& [peer_id, held] : r.held) {
+      bool seen = false;
+      for (const InfoState* s : distinct) seen = seen || SameInfoState(*s, held.msg.basis);
+      if (!seen) distinct.push_back(&held.msg.basis);
+    }
+    InfoState merged = *distinct.front();
+    for (std::size_t i = 1; i < distinct.size(); ++i) {
+      merged = CovarianceIntersection(merged, *distinct[i]);
+    }
+    if (!r.merged) {
+      r.merged = true;
+      ++counters_.merges;
+      Log(LogLevel::kWarn, "step " + std::to_string(r.step) + ": merged " +
+                               std::to_string(distinct.size()) +
+                               " distinct posteriors by covariance intersection (a peer's "
+                               "history lost information)");
+    }
+    return merged;
+  }
+  if (r.basis) return *r.basis;
+  auto previous = records_.find(r.step - 1);
+  if (previous != records_.end()) return previous->second.posterior;
+  return initial_;  // step 1, or a join without history that found nobody to adopt from
+}
+
+void AgentProtocol::Recompute(StepIndex from) {
+  for (auto it = records_.lower_bound(from); it != records_.end(); ++it) {
+    Record& r = it->second;
+    if (r.awaiting_basis) return;
+    // The oldest record's predecessor has left the history: its prior stays as it was.
+    const bool predecessor_gone = it == records_.begin() && r.step > 1 && !r.basis &&
+                                  records_.find(r.step - 1) == records_.end();
+    bool merge = false;
+    for (const auto& [peer_id, held] : r.held) merge = merge || held.msg.merge_request;
+    if (!predecessor_gone || merge) {
+      r.prior = Predict(model_, BaseOf(r));  // eqs (4.45)-(4.46)
+    }
+    std::vector<Contribution> contributions;
+    contributions.reserve(r.held.size());
+    for (const auto& [peer_id, held] : r.held) contributions.push_back(held.contribution);
+    const InformationSum sum = SumContributions(std::move(contributions));
+    // eqs (4.47)-(4.48): y(k|k) = y(k|k-1) + sum_j i_j(k), Y(k|k) = Y(k|k-1) + sum_j I_j(k).
+    r.posterior = r.prior;
+    r.posterior.y.head<2>() += sum.info_vector;
+    r.posterior.Y.topLeftCorner<2, 2>() += sum.info_matrix;
+    r.fused = sum.count;
+  }
+}
+
+void AgentProtocol::Trim() {
+  const auto keep = static_cast<std::size_t>(config_.network.history_steps);
+  while (records_.size() > keep) {
+    const Record& oldest = records_.begin()->second;
+    if (!oldest.written) break;
+    if (!IsComplete(oldest)) {
+      merge_pending_ = true;
+      LogOnce(LogLevel::kWarn, "left incomplete",
+              "step " + std::to_string(oldest.step) +
+                  " left the history without every contribution of its roll call; the next "
+                  "contribution asks the network for a merge (logged once)");
+    }
+    records_.erase(records_.begin());
+  }
+  if (!records_.empty()) {
+    const StepIndex oldest = records_.begin()->first;
+    early_.erase(early_.begin(), early_.lower_bound(oldest));
+  }
+}
+
+// ---------------------------------------------------------------------------------------
+// Identity, counting, output
+
+bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& from) {
+  const std::string who = "agent " + std::to_string(msg.agent_id);
+  if (!ValidAgentId(msg.agent_id, config_)) {
+    Reject(who, "unknown_agent_id");
+    return false;
+  }
+  if (msg.agent_id == id_) {
+    Reject(who, "agent_id_clash");  // someone else speaks for this agent's own id
+    return false;
+  }
+  auto bound = writer_ids_.find(from);
+  if (bound != writer_ids_.end() && bound->second != msg.agent_id) {
+    Reject(who, "agent_id_clash");  // a writer that changes the id it speaks for
+    return false;
+  }
+  Peer& peer = peers_[msg.agent_id];
+  if (!peer.writer) {
+    peer.writer = from;
+    peer.instance_token = msg.instance_token;
+    writer_ids_[from] = msg.agent_id;
+    return true;
+  }
+  if (*peer.writer == from) return true;
+  // Another writer claims an id: refused while the bound writer lives (impersonation);
+  // once it is gone, the new writer is that agent restarted.
+  if (peer.alive) {
+    Reject(who, "agent_id_clash");
+    return false;
+  }
+  writer_ids_.erase(*peer.writer);
+  peer.writer = from;
+  peer.instance_token = msg.instance_token;
+  writer_ids_[from] = msg.agent_id;
+  Log(LogLevel::kInfo, who + " rejoined with a new writer " + ToString(from));
+  return true;
+}
+
+void AgentProtocol::Reject(const std::string& who, const std::string& reason) {
+  ++counters_.rejected;
+  ++counters_.by_reason["rejected: " + reason];
+  LogOnce(LogLevel::kWarn, who + "|rejected|" + reason,
+          "rejected a message from " + who + ": " + reason + " (logged once)");
+}
+
+void AgentProtocol::Drop(const std::string& who, const std::string& reason) {
+  ++counters_.dropped;
+  ++counters_.by_reason["dropped: " + reason];
+  LogOnce(LogLevel::kInfo, who + "|dropped|" + reason,
+          "dropped a message from " + who + ": " + reason + " (logged once)");
+}
+
+void AgentProtocol::Log(LogLevel level, std::string text) {
+  actions_.push_back(agent_action::Log{level, std::move(text)});
+}
+
+void AgentProtocol::LogOnce(LogLevel level, const std::string& key, std::string text) {
+  if (logged_once_.insert(key).second) Log(level, std::move(text));
+}
+
+void AgentProtocol::Publish(const StateMsg& msg) {
+  published_positions_.push_back(msg.position_m);
+  const auto keep = static_cast<std::size_t>(2 * config_.network.history_steps + 4);
+  if (published_positions_.size() > keep) {
+    published_positions_.erase(published_positions_.begin(),
+                               published_positions_.end() - static_cast<std::ptrdiff_t>(keep));
+  }
+  actions_.push_back(agent_action::PublishState{msg});
+}
+
+void AgentProtocol::Finish(int code, std::string reason) {
+  if (finished_) return;
+  finished_ = true;
+  open_ = false;
+  actions_.push_back(agent_action::Finish{code, std::move(reason)});
+}
+
+StateMsg AgentProtocol::MakeState(StepIndex step, const InfoState& posterior, int fused,
+                                  bool complete) const {
+  const Eif filter(model_, posterior);
+  StateMsg msg;
+  msg.run = options_.run;
+  msg.agent_id = id_;
+  msg.instance_token = options_.instance_token;
+  msg.step = step;
+  msg.position_m = position_m_;
+  msg.angle_rad = angle_rad_;
+  msg.estimate_m = filter.PositionEstimate();
+  msg.covariance = filter.PositionCovariance();
+  msg.alive = static_cast<int>(Members().size());
+  msg.fused = fused;
+  msg.complete = complete;
+  msg.deadline_misses = counters_.deadline_misses;
+  msg.rejected = counters_.rejected;
+  msg.dropped = counters_.dropped;
+  return msg;
+}
+
+bool AgentProtocol::PublishedPosition(const Vector2& p) const {
+  return std::find(published_positions_.begin(), published_positions_.end(), p) !=
+         published_positions_.end();
+}
+
+double AgentProtocol::Patience() const {
+  // Before its first range an agent also allows the target its own start timeout and a step.
+  return config_.network.start_timeout_s + (ever_opened_ ? 0.0 : config_.network.step_timeout_s);
+}
+
+double AgentProtocol::ExpectedStart(StepIndex k) const {
+  return clock_sync_->second +
+         static_cast<double>(k - clock_sync_->first) * config_.scenario.period_s;
+}
+
+}  // namespace deif::protocol

@@ -1,0 +1,221 @@
+// One agent's step protocol as a pure state machine (docs/PROTOCOL.md): events in (a range,
+// a peer's contribution, a writer's liveliness, the clock), actions out (publish, write a
+// row, log, finish). The DDS adapter (agent/) and the in-process simulation (common/sim)
+// only deliver events and carry out actions, so the protocol is tested here with a scripted
+// network that drops, delays, duplicates, reorders and partitions.
+//
+// What it guarantees (docs/PROTOCOL.md, "Eventual exactness"):
+// - The target's roll call tells every agent which contributions step k should have.
+// - A contribution that arrives late, within network.history_steps, is fused into the step
+//   it belongs to and the estimate is re-propagated to now. Information adds, so the order
+//   of arrival does not matter, and sums run in ascending id: once every contribution of a
+//   step has reached every agent, all agents hold bit-identical estimates.
+// - A step that leaves the history incomplete (a partition longer than the history, a
+//   sender that died mid-send) makes the agent ask for a merge; every agent then replaces
+//   the posterior of that step's predecessor by the covariance intersection of every
+//   distinct posterior carried by that step's contributions: the same rule from the same
+//   data at every agent, and never more confident than its inputs.
+// - An agent that (re)joins without usable history adopts the posterior carried by the
+//   lowest-id contributor of its first step.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <utility>
+#include <variant>
+#include <vector>
+
+#include "common/artefacts/artefacts.hpp"
+#include "common/config/config.hpp"
+#include "common/core/filters.hpp"
+#include "common/protocol/messages.hpp"
+
+namespace deif::protocol {
+
+enum class LogLevel { kDebug, kInfo, kWarn, kError };
+
+// Process exit codes shared by every executable (docs/RUNNING.md).
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitRuntimeError = 1;
+inline constexpr int kExitBadConfig = 2;
+inline constexpr int kExitDuplicate = 3;  // an agent id (or the run's target) is already live
+
+// What an agent counted, by reason (reported in summary.json).
+struct AgentCounters {
+  std::int64_t rejected = 0;         // invalid, hostile or foreign messages
+  std::int64_t dropped = 0;          // valid but unusable: too old, too far ahead, duplicate
+  std::int64_t late = 0;             // contributions fused after their step's row was written
+  std::int64_t deadline_misses = 0;  // rows written without every roll-call contribution
+  std::int64_t adoptions = 0;        // posteriors adopted from a peer (rejoin)
+  std::int64_t merges = 0;           // covariance-intersection merges applied
+  std::map<std::string, std::int64_t> by_reason;  // "rejected: not_psd" -> count
+};
+
+namespace agent_action {
+struct PublishContribution {
+  ContributionMsg msg;
+};
+struct PublishState {
+  StateMsg msg;
+};
+struct WriteRow {
+  AgentRow row;
+};
+struct Log {
+  LogLevel level;
+  std::string text;
+};
+struct Finish {
+  int exit_code;
+  std::string reason;
+};
+}  // namespace agent_action
+
+using AgentAction = std::variant<agent_action::PublishContribution, agent_action::PublishState,
+                                 agent_action::WriteRow, agent_action::Log, agent_action::Finish>;
+
+class AgentProtocol {
+ public:
+  struct Options {
+    RunToken run = 1;
+    std::uint64_t instance_token = 1;  // random per process start (tells restarts apart)
+    double innovation_gate_sigma = 0.0;  // 0: config.filter's value
+  };
+
+  // The config must outlive the protocol. Throws std::invalid_argument for an id outside
+  // 1..agents.count.
+  AgentProtocol(const Config& config, AgentId id, Options options);
+
+  // ---- events (now_s: a monotonic clock, the same for every call) ----
+  // Publishes the initial state (step 0) so the target knows where this agent is.
+  void Start(double now_s);
+  void OnRange(const RangeMsg& msg, const SenderKey& from, double now_s);
+  void OnContribution(const ContributionMsg& msg, const SenderKey& from, double now_s);
+  // A remote writer's liveliness changed: a peer's contribution writer, or the target's
+  // range writer.
+  void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
+  void OnTimer(double now_s);
+
+  // When OnTimer should next be called (nullopt: only events can move the protocol on).
+  std::optional<double> NextDeadline() const;
+  // The actions produced since the last call, in order.
+  std::vector<AgentAction> TakeActions();
+
+  bool finished() const { return finished_; }
+  AgentId id() const { return id_; }
+  StepIndex last_written_step() const { return written_; }
+  const AgentCounters& counters() const { return counters_; }
+  const Vector2& position() const { return position_m_; }
+  // The posterior of step k while k is within the history.
+  std::optional<InfoState> PosteriorOf(StepIndex k) const;
+  // Members believed alive: this agent and every bound peer whose contribution writer lives.
+  std::set<AgentId> Members() const;
+
+ private:
+  // A validated contribution held for its step.
+  struct Held {
+    ContributionMsg msg;
+    Contribution contribution;
+  };
+  // One step of the history.
+  struct Record {
+    StepIndex step = 0;
+    double start_s = 0.0;
+    double deadline_s = 0.0;
+    std::optional<std::vector<AgentId>> roll_call;
+    std::optional<RangeObservation> own_range;  // when this agent was measured
+    bool own_sent = false;
+    bool awaiting_basis = false;     // rejoining: no usable posterior of step-1 yet
+    std::optional<InfoState> basis;  // replaces the posterior of step-1 (adoption)
+    bool merged = false;
+    std::map<AgentId, Held> held;    // ascending id
+    InfoState prior;                 // y(k|k-1), Y(k|k-1)
+    InfoState posterior;             // y(k|k), Y(k|k)
+    int fused = 0;
+    bool written = false;
+  };
+  struct Peer {
+    std::optional<SenderKey> writer;  // the bound contribution writer
+    std::uint64_t instance_token = 0;
+    bool alive = false;
+    double lost_at_s = 0.0;  // when it was last seen lost
+    std::optional<std::pair<StepIndex, Vector2>> last_position;  // (step, position)
+  };
+  struct PendingRange {
+    RangeMsg msg;
+    double arrival_s = 0.0;
+  };
+
+  // Moves the protocol as far as it can go now.
+  void Advance(double now_s);
+  void OpenStep(StepIndex k, const std::optional<PendingRange>& range, double start_s);
+  bool CanFinish(const Record& r, double now_s) const;
+  void FinishStep(double now_s);
+  bool IsComplete(const Record& r) const;
+  void ApplyRange(Record& r, const RangeMsg& msg);
+  void EmitOwnContribution(Record& r);
+  bool TryAdopt(Record& r);
+  void Recompute(StepIndex from);
+  InfoState BaseOf(Record& r);
+  void Hold(Record& r, Held held, bool count_late);
+  void Trim();
+  void SetRollCall(Record& r, std::vector<AgentId> roll_call);
+
+  bool AcceptIdentity(const ContributionMsg& msg, const SenderKey& from);
+  void Reject(const std::string& who, const std::string& reason);
+  void Drop(const std::string& who, const std::string& reason);
+  void Log(LogLevel level, std::string text);
+  void LogOnce(LogLevel level, const std::string& key, std::string text);
+  void Publish(const StateMsg& msg);
+  void Finish(int code, std::string reason);
+  StateMsg MakeState(StepIndex step, const InfoState& posterior, int fused, bool complete) const;
+  bool PublishedPosition(const Vector2& p) const;
+  double ExpectedStart(StepIndex k) const;
+  // How long the target may be silent before this agent gives up (lock-step).
+  double Patience() const;
+  bool RealTime() const { return config_.scenario.mode == StepMode::kRealTime; }
+
+  const Config& config_;
+  const AgentId id_;
+  const Options options_;
+  const MotionModel model_;
+  const InfoState initial_;  // the common prior, posterior of step 0
+  const double gate_sigma_;
+
+  bool started_ = false;
+  bool finished_ = false;
+  std::vector<AgentAction> actions_;
+  AgentCounters counters_;
+  std::set<std::string> logged_once_;
+
+  // Steps: records_ holds the history [oldest, current]; written_ is the last step whose
+  // row is written; an open step is records_.rbegin() with !written.
+  std::map<StepIndex, Record> records_;
+  StepIndex written_ = 0;
+  bool open_ = false;
+  bool ever_opened_ = false;
+  bool needs_basis_ = false;
+  bool merge_pending_ = false;
+  std::map<StepIndex, PendingRange> pending_ranges_;          // steps not yet opened
+  std::map<StepIndex, std::map<AgentId, Held>> early_;        // contributions ahead of us
+  std::optional<std::pair<StepIndex, double>> clock_sync_;    // real time: (step, its start)
+
+  // Motion.
+  Vector2 position_m_;
+  double angle_rad_;
+  std::vector<Vector2> published_positions_;  // recent positions, for stale-range detection
+
+  // Peers and the target.
+  std::map<AgentId, Peer> peers_;
+  std::map<SenderKey, AgentId> writer_ids_;
+  std::set<SenderKey> alive_writers_;
+  std::optional<SenderKey> target_writer_;
+  bool target_alive_ = false;  // the bound target writer: alive until seen lost
+  double last_target_contact_s_ = 0.0;
+  bool target_silent_logged_ = false;
+};
+
+}  // namespace deif::protocol

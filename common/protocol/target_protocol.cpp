@@ -1,0 +1,328 @@
+#include "common/protocol/target_protocol.hpp"
+
+#include <algorithm>
+#include <limits>
+
+#include "common/protocol/validation.hpp"
+
+namespace deif::protocol {
+
+namespace {
+
+std::string Describe(const FaultConfig& fault) {
+  if (fault.action == FaultAction::kRestartTarget) return "restart the target";
+  return std::string(ToString(fault.action)) + " agent " + std::to_string(fault.agent_id);
+}
+
+}  // namespace
+
+TargetProtocol::TargetProtocol(const Config& config, Options options)
+    : config_(config), options_(options), core_(config) {}
+
+void TargetProtocol::Start(double now_s) {
+  start_s_ = now_s;
+  last_new_agent_s_ = now_s;
+  Log(LogLevel::kInfo, "waiting for " + std::to_string(config_.agents.count) + " agents");
+  Advance(now_s);
+}
+
+void TargetProtocol::OnState(const StateMsg& msg, const SenderKey& from, double now_s) {
+  if (phase_ == Phase::kDone) return;
+  if (msg.run != options_.run) {
+    Reject("a process of another run", "other_run");
+    return;
+  }
+  const std::string who = "agent " + std::to_string(msg.agent_id);
+  if (const char* reason = ValidateState(msg, config_)) {
+    Reject(who, reason);
+    return;
+  }
+  Agent& agent = agents_[msg.agent_id];
+  if (!agent.writer) {
+    agent.writer = from;
+    writer_ids_[from] = msg.agent_id;
+    agent.instance_token = msg.instance_token;
+  } else if (*agent.writer != from) {
+    if (agent.alive) {
+      Reject(who, "agent_id_clash");  // another live writer holds this id
+      return;
+    }
+    writer_ids_.erase(*agent.writer);
+    agent.writer = from;
+    writer_ids_[from] = msg.agent_id;
+    agent.instance_token = msg.instance_token;
+    agent.latest.reset();  // a restarted agent: its new state replaces the old one
+    Log(LogLevel::kInfo, who + " restarted (new writer " + ToString(from) + ")");
+  }
+  if (!agent.latest || msg.step >= agent.latest->step) agent.latest = msg;
+  if (!agent.alive) {
+    agent.alive = true;
+    last_new_agent_s_ = now_s;
+    Log(LogLevel::kInfo, who + " seen at step " + std::to_string(msg.step));
+  }
+  Advance(now_s);
+}
+
+void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
+  if (alive) {
+    alive_writers_.insert(writer);
+  } else {
+    alive_writers_.erase(writer);
+  }
+  auto bound = writer_ids_.find(writer);
+  if (bound == writer_ids_.end()) return;
+  Agent& agent = agents_[bound->second];
+  if (agent.alive == alive) return;
+  agent.alive = alive;
+  const std::string who = "agent " + std::to_string(bound->second);
+  if (alive) {
+    last_new_agent_s_ = now_s;
+    Log(LogLevel::kInfo, who + " alive again");
+  } else {
+    Log(LogLevel::kWarn, who + " lost (liveliness): not measured or waited for any more");
+  }
+  Advance(now_s);
+}
+
+void TargetProtocol::OnGo(StepIndex step, double now_s) {
+  if (phase_ != Phase::kHolding || step != step_) return;
+  phase_ = Phase::kApplyingFaults;
+  hold_deadline_s_ = now_s + config_.network.start_timeout_s;
+  Advance(now_s);
+}
+
+void TargetProtocol::OnTimer(double now_s) { Advance(now_s); }
+
+std::set<AgentId> TargetProtocol::AliveAgents() const {
+  std::set<AgentId> alive;
+  for (const auto& [id, agent] : agents_) {
+    if (agent.alive && agent.latest) alive.insert(id);
+  }
+  return alive;
+}
+
+std::vector<TargetAction> TargetProtocol::TakeActions() {
+  std::vector<TargetAction> out;
+  out.swap(actions_);
+  return out;
+}
+
+std::optional<double> TargetProtocol::NextDeadline() const {
+  const double settle_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
+  switch (phase_) {
+    case Phase::kWaitingForAgents: {
+      const double timeout_s = start_s_ + config_.network.start_timeout_s;
+      // A resuming target also wakes when the agents have settled.
+      bool resuming = options_.start_step.has_value();
+      for (const auto& [id, agent] : agents_) {
+        resuming = resuming || (agent.latest && agent.latest->step > 0);
+      }
+      const double settled_s = std::max(start_s_, last_new_agent_s_) + settle_s;
+      return resuming ? std::min(timeout_s, settled_s) : timeout_s;
+    }
+    case Phase::kStepping:
+      if (RealTime()) {
+        return step_start_s_ + config_.scenario.period_s;
+      }
+      return step_start_s_ + config_.network.step_timeout_s;
+    case Phase::kApplyingFaults:
+      return hold_deadline_s_;
+    case Phase::kHolding:
+    case Phase::kDone:
+      break;
+  }
+  return std::nullopt;
+}
+
+// ---------------------------------------------------------------------------------------
+
+void TargetProtocol::Advance(double now_s) {
+  for (;;) {
+    switch (phase_) {
+      case Phase::kWaitingForAgents: {
+        const std::set<AgentId> alive = AliveAgents();
+        StepIndex newest = 0;
+        for (AgentId id : alive) newest = std::max(newest, agents_.at(id).latest->step);
+        const bool resuming = options_.start_step.has_value() || newest > 0;
+        // A restarted target finds running agents over a few announcements: it waits until
+        // no new agent has appeared for a while.
+        const double settle_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
+        const bool everyone = alive.size() >= static_cast<std::size_t>(config_.agents.count);
+        const bool settled = resuming && now_s - start_s_ >= settle_s &&
+                             now_s - last_new_agent_s_ >= settle_s && !alive.empty();
+        const bool timed_out = now_s - start_s_ >= config_.network.start_timeout_s;
+        if (everyone || settled || (timed_out && !alive.empty())) {
+          first_step_ = options_.start_step ? *options_.start_step : newest + 1;
+          std::string who;
+          for (AgentId id : alive) who += " " + std::to_string(id);
+          Log(LogLevel::kInfo, std::to_string(alive.size()) + " of " +
+                                   std::to_string(config_.agents.count) + " agents present:" +
+                                   who + "; starting at step " + std::to_string(first_step_));
+          if (first_step_ > config_.scenario.steps) {
+            Finish(kExitOk, "nothing left to do: the agents finished step " + std::to_string(newest));
+            return;
+          }
+          BeginStep(first_step_, now_s);
+          continue;
+        }
+        if (timed_out) {
+          Finish(kExitRuntimeError, "no agent appeared within " +
+                                        std::to_string(config_.network.start_timeout_s) +
+                                        " s (network.start_timeout_s)");
+        }
+        return;
+      }
+      case Phase::kStepping: {
+        if (!StepDone(now_s)) return;
+        const StepIndex next = step_ + 1;
+        if (next > config_.scenario.steps) {
+          Finish(kExitOk, "run over after step " + std::to_string(step_));
+          return;
+        }
+        BeginStep(next, now_s);
+        continue;
+      }
+      case Phase::kApplyingFaults: {
+        if (!FaultsApplied(now_s)) return;
+        PublishStep(step_);
+        phase_ = Phase::kStepping;
+        step_start_s_ = now_s;
+        continue;
+      }
+      case Phase::kHolding:
+      case Phase::kDone:
+        return;
+    }
+  }
+}
+
+bool TargetProtocol::StepDone(double now_s) const {
+  if (RealTime()) return now_s >= step_start_s_ + config_.scenario.period_s;
+  for (const auto& [id, agent] : agents_) {
+    if (agent.alive && agent.latest && agent.latest->step < step_) {
+      if (now_s < step_start_s_ + config_.network.step_timeout_s) return false;
+    }
+  }
+  return true;
+}
+
+bool TargetProtocol::FaultsApplied(double now_s) const {
+  bool applied = true;
+  for (const FaultConfig* fault : FaultsAt(step_)) {
+    if (fault->action == FaultAction::kRestartTarget) continue;
+    auto it = agents_.find(fault->agent_id);
+    const bool alive = it != agents_.end() && it->second.alive;
+    switch (fault->action) {
+      case FaultAction::kKill:
+      case FaultAction::kStop:
+        applied = applied && !alive;  // its peers must see it gone before the step
+        break;
+      case FaultAction::kCont:
+        // Back, and caught up with the step before this one.
+        applied = applied && alive && it->second.latest && it->second.latest->step >= step_ - 1;
+        break;
+      case FaultAction::kRestartTarget:
+        break;
+    }
+  }
+  return applied || now_s >= hold_deadline_s_;
+}
+
+std::vector<const FaultConfig*> TargetProtocol::FaultsAt(StepIndex k) const {
+  std::vector<const FaultConfig*> faults;
+  for (const FaultConfig& fault : config_.faults) {
+    if (fault.step != k) continue;
+    // A target restarted for this step's fault does not hold for it again.
+    if (fault.action == FaultAction::kRestartTarget && options_.start_step &&
+        *options_.start_step == k) {
+      continue;
+    }
+    faults.push_back(&fault);
+  }
+  return faults;
+}
+
+void TargetProtocol::BeginStep(StepIndex k, double now_s) {
+  // Real time: a step's tick is the previous tick plus one period (no drift); the first
+  // step's tick is now.
+  const double tick_s = RealTime() && phase_ == Phase::kStepping
+                            ? step_start_s_ + config_.scenario.period_s
+                            : now_s;
+  step_ = k;
+  const std::vector<const FaultConfig*> faults = FaultsAt(k);
+  if (!faults.empty() && options_.hold_for_faults) {
+    std::string text;
+    for (const FaultConfig* fault : faults) text += (text.empty() ? "" : "; ") + Describe(*fault);
+    actions_.push_back(target_action::Hold{k, text});
+    if (!RealTime()) {
+      Log(LogLevel::kInfo, "step " + std::to_string(k) + " held for: " + text);
+      phase_ = Phase::kHolding;
+      return;
+    }
+  }
+  PublishStep(k);
+  phase_ = Phase::kStepping;
+  step_start_s_ = RealTime() ? tick_s : now_s;
+}
+
+void TargetProtocol::PublishStep(StepIndex k) {
+  const Vector2 p_true = core_.TruthAt(k);
+  const double t_s = core_.TimeAt(k);
+  // The roll call: lock-step measures the agents that finished the previous step (those
+  // still catching up are told the roll call and follow); real time measures every agent
+  // alive, from its latest position.
+  std::vector<AgentId> roll_call;
+  for (const auto& [id, agent] : agents_) {
+    if (!agent.alive || !agent.latest) continue;
+    if (RealTime() || agent.latest->step == k - 1) roll_call.push_back(id);
+  }
+  TruthMsg truth;
+  truth.run = options_.run;
+  truth.step = k;
+  truth.t_s = t_s;
+  truth.p_true = p_true;
+  actions_.push_back(target_action::PublishTruth{truth});
+  actions_.push_back(target_action::WriteTruthRow{TargetRow{k, t_s, p_true}});
+  std::size_t next_member = 0;
+  for (AgentId id = 1; id <= config_.agents.count; ++id) {
+    RangeMsg msg;
+    msg.run = options_.run;
+    msg.agent_id = id;
+    msg.step = k;
+    msg.t_s = t_s;
+    msg.roll_call = roll_call;
+    msg.measured = next_member < roll_call.size() && roll_call[next_member] == id;
+    if (msg.measured) {
+      ++next_member;
+      msg.p_sensor = agents_.at(id).latest->position_m;  // its latest published position
+      // eqs (2.1), (5.5): z_j = f(||x - p_j||) + v_j, drawn from (seed, step, id) alone.
+      msg.range_m = core_.NoisyRange(k, id, p_true, msg.p_sensor);
+      msg.variance_m2 = config_.filter.range_variance_m2;
+      actions_.push_back(target_action::WriteRangeRow{
+          RangeRow{k, id, msg.range_m, msg.variance_m2, msg.p_sensor}});
+    }
+    actions_.emplace_back(std::in_place_type<target_action::PublishRange>, target_action::PublishRange{msg});
+  }
+  if (roll_call.empty() && logged_once_.insert("empty roll call").second) {
+    Log(LogLevel::kWarn, "step " + std::to_string(k) + ": no agent alive to measure (logged once)");
+  }
+}
+
+void TargetProtocol::Reject(const std::string& who, const std::string& reason) {
+  ++rejected_["rejected: " + reason];
+  if (logged_once_.insert(who + "|" + reason).second) {
+    Log(LogLevel::kWarn, "rejected a state from " + who + ": " + reason + " (logged once)");
+  }
+}
+
+void TargetProtocol::Log(LogLevel level, std::string text) {
+  actions_.push_back(target_action::Log{level, std::move(text)});
+}
+
+void TargetProtocol::Finish(int code, std::string reason) {
+  if (phase_ == Phase::kDone) return;
+  phase_ = Phase::kDone;
+  actions_.push_back(target_action::Finish{code, std::move(reason)});
+}
+
+}  // namespace deif::protocol

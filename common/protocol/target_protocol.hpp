@@ -1,0 +1,123 @@
+// The target's step protocol as a pure state machine (docs/PROTOCOL.md): it waits for the
+// agents, then at every step publishes the truth and, to every agent id, a range message
+// with the step's roll call (the ids it measured); it paces the lock-step on the agents'
+// states, or a real-time clock; and in lock-step it holds a step with a scripted fault until
+// the fault is applied, so a faulted run is reproducible from its seed.
+#pragma once
+
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "common/artefacts/artefacts.hpp"
+#include "common/config/config.hpp"
+#include "common/protocol/agent_protocol.hpp"
+#include "common/protocol/messages.hpp"
+#include "common/protocol/target_core.hpp"
+
+namespace deif::protocol {
+
+namespace target_action {
+struct PublishRange {
+  RangeMsg msg;
+};
+struct PublishTruth {
+  TruthMsg msg;
+};
+struct WriteTruthRow {
+  TargetRow row;
+};
+struct WriteRangeRow {
+  RangeRow row;
+};
+// The target reached a step with scripted faults. In lock-step it waits for OnGo(step)
+// (the launcher applies the faults, then says go); in real time it goes on.
+struct Hold {
+  StepIndex step;
+  std::string faults;  // e.g. "kill agent 3"
+};
+struct Log {
+  LogLevel level;
+  std::string text;
+};
+struct Finish {
+  int exit_code;
+  std::string reason;
+};
+}  // namespace target_action
+
+using TargetAction =
+    std::variant<target_action::PublishRange, target_action::PublishTruth,
+                 target_action::WriteTruthRow, target_action::WriteRangeRow, target_action::Hold,
+                 target_action::Log, target_action::Finish>;
+
+class TargetProtocol {
+ public:
+  struct Options {
+    RunToken run = 1;
+    std::optional<StepIndex> start_step;  // resume here (a restarted target)
+    bool hold_for_faults = false;         // hold steps with faults until OnGo (lock-step)
+  };
+
+  // The config must outlive the protocol.
+  TargetProtocol(const Config& config, Options options);
+
+  void Start(double now_s);
+  void OnState(const StateMsg& msg, const SenderKey& from, double now_s);
+  // An agent's state writer's liveliness changed.
+  void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // The faults of a held step were applied.
+  void OnGo(StepIndex step, double now_s);
+  void OnTimer(double now_s);
+
+  std::optional<double> NextDeadline() const;
+  std::vector<TargetAction> TakeActions();
+
+  bool finished() const { return phase_ == Phase::kDone; }
+  StepIndex current_step() const { return step_; }
+  std::set<AgentId> AliveAgents() const;  // alive with a known state
+  const std::map<std::string, std::int64_t>& rejected_by_reason() const { return rejected_; }
+
+ private:
+  enum class Phase { kWaitingForAgents, kStepping, kHolding, kApplyingFaults, kDone };
+  struct Agent {
+    std::optional<SenderKey> writer;
+    std::uint64_t instance_token = 0;
+    bool alive = false;
+    std::optional<StateMsg> latest;
+  };
+
+  void Advance(double now_s);
+  bool StepDone(double now_s) const;
+  bool FaultsApplied(double now_s) const;
+  void BeginStep(StepIndex k, double now_s);
+  void PublishStep(StepIndex k);
+  std::vector<const FaultConfig*> FaultsAt(StepIndex k) const;
+  void Reject(const std::string& who, const std::string& reason);
+  void Log(LogLevel level, std::string text);
+  void Finish(int code, std::string reason);
+  bool RealTime() const { return config_.scenario.mode == StepMode::kRealTime; }
+
+  const Config& config_;
+  const Options options_;
+  TargetCore core_;
+  std::vector<TargetAction> actions_;
+  Phase phase_ = Phase::kWaitingForAgents;
+  double start_s_ = 0.0;
+  double last_new_agent_s_ = 0.0;
+  StepIndex first_step_ = 1;
+  StepIndex step_ = 0;          // the step published last
+  double step_start_s_ = 0.0;   // when it was published (lock-step) / its tick (real time)
+  double hold_deadline_s_ = 0.0;
+  std::size_t seen_agents_ = 0;
+  std::map<AgentId, Agent> agents_;
+  std::map<SenderKey, AgentId> writer_ids_;
+  std::set<SenderKey> alive_writers_;
+  std::map<std::string, std::int64_t> rejected_;
+  std::set<std::string> logged_once_;
+};
+
+}  // namespace deif::protocol

@@ -1,0 +1,206 @@
+#include "dds/application.hpp"
+
+#include <pthread.h>
+#include <signal.h>
+
+#include <atomic>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <thread>
+
+#include <spdlog/sinks/basic_file_sink.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include "common/protocol/agent_protocol.hpp"
+#include "common/protocol/messages.hpp"
+
+namespace deif::dds {
+
+namespace {
+
+// Blocks SIGINT/SIGTERM in every thread (call before any thread exists) and calls the
+// handler from a dedicated thread when one arrives.
+class SignalStopper {
+ public:
+  SignalStopper() {
+    sigset_t set = Signals();
+    pthread_sigmask(SIG_BLOCK, &set, nullptr);  // inherited by every thread created later
+    thread_ = std::thread([this] {
+      sigset_t wait_set = Signals();
+      for (;;) {
+        int signal_number = 0;
+        if (sigwait(&wait_set, &signal_number) != 0) continue;
+        if (exiting_.load()) return;
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (on_signal_) on_signal_(signal_number);
+      }
+    });
+  }
+  ~SignalStopper() {
+    exiting_.store(true);
+    pthread_kill(thread_.native_handle(), SIGTERM);
+    thread_.join();
+  }
+  SignalStopper(const SignalStopper&) = delete;
+  SignalStopper& operator=(const SignalStopper&) = delete;
+  void SetHandler(std::function<void(int)> on_signal) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    on_signal_ = std::move(on_signal);
+  }
+
+ private:
+  static sigset_t Signals() {
+    sigset_t set;
+    sigemptyset(&set);
+    sigaddset(&set, SIGINT);
+    sigaddset(&set, SIGTERM);
+    return set;
+  }
+  std::atomic<bool> exiting_{false};
+  std::mutex mutex_;
+  std::function<void(int)> on_signal_;
+  std::thread thread_;
+};
+
+std::shared_ptr<spdlog::logger> MakeLogger(const std::string& name, const std::string& log_dir) {
+  std::vector<spdlog::sink_ptr> sinks;
+  sinks.push_back(std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+  if (!log_dir.empty()) {
+    sinks.push_back(
+        std::make_shared<spdlog::sinks::basic_file_sink_mt>(log_dir + "/" + name + ".log", true));
+  }
+  auto logger = std::make_shared<spdlog::logger>(name, sinks.begin(), sinks.end());
+  logger->set_pattern("[%Y-%m-%d %H:%M:%S.%e] [%n] [%l] %v");
+  logger->flush_on(spdlog::level::info);
+  spdlog::register_logger(logger);
+  return logger;
+}
+
+// A folder the process writes into: created when missing, and checked writable.
+void PrepareFolder(const std::string& dir, const char* option) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  const std::filesystem::path probe = std::filesystem::path(dir) / ".deif_write_test";
+  std::ofstream out(probe);
+  if (ec || !out) throw ConfigError(option, "", 0, "cannot write to the folder '" + dir + "'");
+  out.close();
+  std::filesystem::remove(probe, ec);
+}
+
+bool AllDigits(const std::string& text) {
+  return !text.empty() && text.size() <= 20 && text.find_first_not_of("0123456789") == std::string::npos;
+}
+
+Config LoadProcessConfig(const ProcessOptions& options) {
+  std::vector<std::string> overrides = options.overrides;
+  if (!options.domain.empty()) {
+    if (!AllDigits(options.domain) || std::stoull(options.domain) > 232) {
+      throw ConfigError("--domain", "network.domain_id", 0,
+                        "must be an integer in 0..232 (got '" + options.domain + "')");
+    }
+    overrides.push_back("network.domain_id=" + options.domain);
+  }
+  if (!options.seed.empty()) {
+    bool ok = AllDigits(options.seed);
+    if (ok) {
+      errno = 0;
+      std::strtoull(options.seed.c_str(), nullptr, 10);
+      ok = errno != ERANGE;
+    }
+    if (!ok) {
+      throw ConfigError("--seed", "scenario.seed", 0,
+                        "expected a non-negative integer below 2^64 (got '" + options.seed + "')");
+    }
+    overrides.push_back("scenario.seed=" + options.seed);
+  }
+  return LoadConfig(options.config_path, overrides);
+}
+
+}  // namespace
+
+void CheckRunName(const std::string& name) {
+  const bool ok = !name.empty() && name.size() <= 64 &&
+                  name.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz"
+                                         "0123456789._-") == std::string::npos;
+  if (!ok) {
+    throw ConfigError("--run", "", 0,
+                      "a run name is 1..64 characters of letters, digits, '.', '_' and '-' (got '" +
+                          name + "')");
+  }
+}
+
+std::string DefaultRunName(const Config& config) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "cfg-%016llx",
+                static_cast<unsigned long long>(protocol::RunTokenOf(ToYaml(config))));
+  return buffer;
+}
+
+int RunMain(int argc, char** argv, const ProcessSpec& spec) {
+  SignalStopper signals;  // first: blocks SIGINT/SIGTERM before any thread exists
+  const auto fail = [&spec](int code, const std::string& what) {
+    std::fprintf(stderr, "%s: error: %s\n", spec.program, what.c_str());
+    return code;
+  };
+
+  CLI::App cli{spec.description};
+  ProcessContext context;
+  ProcessOptions& options = context.options;
+  cli.add_option("--config", options.config_path, "Scenario YAML file (see configs/default.yaml)")
+      ->required();
+  cli.add_option("--set", options.overrides,
+                 "Override a config key: dotted.key=YAML value (repeatable)");
+  cli.add_option("--log-dir", options.log_dir, "Also write the log to DIR/<name>.log (created)");
+  cli.add_option("--domain", options.domain, "DDS domain id 0..232 (overrides network.domain_id)");
+  cli.add_option("--out", options.out_dir, "Run folder for this process's CSV files (created)");
+  cli.add_option("--seed", options.seed, "Overrides scenario.seed");
+  cli.add_option("--run", options.run_name,
+                 "The run's name: processes of other runs on the domain are ignored (default: "
+                 "derived from the config)");
+  cli.add_flag("--append", options.append, "Append to existing CSV files (a restarted process)");
+  if (spec.add_options) spec.add_options(cli);
+  try {
+    cli.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return cli.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return cli.exit(e);
+  } catch (const CLI::ParseError& e) {
+    return fail(protocol::kExitBadConfig, e.what());
+  }
+
+  try {
+    context.config = LoadProcessConfig(options);
+    if (!options.run_name.empty()) CheckRunName(options.run_name);
+    if (spec.check) spec.check(context.config);
+    if (!options.out_dir.empty()) PrepareFolder(options.out_dir, "--out");
+    if (!options.log_dir.empty()) PrepareFolder(options.log_dir, "--log-dir");
+  } catch (const std::exception& e) {  // ConfigError names file, key and line
+    return fail(protocol::kExitBadConfig, e.what());
+  }
+  context.run_name = options.run_name.empty() ? DefaultRunName(context.config) : options.run_name;
+
+  context.log = MakeLogger(spec.logger_name(), options.log_dir);
+  try {
+    std::unique_ptr<Application> app = spec.make(context);
+    Application* raw = app.get();
+    auto log = context.log;
+    signals.SetHandler([raw, log](int signal_number) {
+      log->info("signal {}: stopping", signal_number);
+      raw->Stop();
+    });
+    const int code = app->Run();
+    signals.SetHandler(nullptr);
+    return code;
+  } catch (const ConfigError& e) {
+    return fail(protocol::kExitBadConfig, e.what());
+  } catch (const std::exception& e) {
+    context.log->critical("{}", e.what());
+    return fail(protocol::kExitRuntimeError, e.what());
+  }
+}
+
+}  // namespace deif::dds

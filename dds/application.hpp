@@ -1,0 +1,74 @@
+// The skeleton every DDS executable shares (Fast DDS's examples keep one Application
+// interface and one main): the command-line options, the config, the logger, SIGINT/SIGTERM
+// wired to Stop(), and errors mapped to one line and an exit code (docs/RUNNING.md).
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <spdlog/logger.h>
+
+#include "common/config/config.hpp"
+
+namespace deif::dds {
+
+// An executable's application object: RAII over its DDS entities.
+class Application {
+ public:
+  virtual ~Application() = default;
+  // Runs until done or Stop(); returns the exit code.
+  virtual int Run() = 0;
+  // Thread-safe: makes Run() return soon.
+  virtual void Stop() = 0;
+};
+
+// The options every DDS executable takes.
+struct ProcessOptions {
+  std::string config_path;
+  std::vector<std::string> overrides;  // --set dotted.key=value
+  std::string log_dir;
+  std::string out_dir;
+  std::string domain;                  // text, checked like the config key
+  std::string seed;
+  std::string run_name;                // --run
+  bool append = false;                 // append to existing CSVs (a restarted process)
+};
+
+struct ProcessContext {
+  Config config;
+  ProcessOptions options;
+  std::string run_name;  // the effective run name
+  std::shared_ptr<spdlog::logger> log;
+};
+
+struct ProcessSpec {
+  const char* program;      // "deif_agent"
+  const char* description;
+  // Adds the executable's own options.
+  std::function<void(CLI::App&)> add_options;
+  // The logger's (and log file's) name, e.g. "agent-3".
+  std::function<std::string()> logger_name;
+  // Checks the executable's own options against the config; throws ConfigError.
+  std::function<void(const Config&)> check;
+  // Makes the application (after every check passed).
+  std::function<std::unique_ptr<Application>(ProcessContext&)> make;
+};
+
+// The whole main(): parses, checks everything before starting anything (a bad option or
+// config prints `<program>: error: <file>:<line>: key '<key>': <reason>` and returns 2),
+// runs, and maps exceptions to exit code 1 with one line.
+int RunMain(int argc, char** argv, const ProcessSpec& spec);
+
+// The run name when --run is not given: derived from the effective config, so processes
+// started by hand with the same config (and seed) find each other and no others.
+std::string DefaultRunName(const Config& config);
+
+// A run name is 1..64 characters of [A-Za-z0-9._-]; throws ConfigError otherwise.
+void CheckRunName(const std::string& name);
+
+}  // namespace deif::dds

@@ -1,0 +1,483 @@
+// The DDS node (node.hpp). QoS choices are explained in docs/ARCHITECTURE.md ("Topics and
+// QoS"); the Fast DDS facts they rest on in docs/FASTDDS_NOTES.md.
+#include "dds/node.hpp"
+
+#include <array>
+#include <atomic>
+#include <condition_variable>
+#include <cstdlib>
+#include <map>
+#include <mutex>
+#include <random>
+#include <set>
+#include <stdexcept>
+#include <thread>
+
+#include <fastdds/dds/core/condition/GuardCondition.hpp>
+#include <fastdds/dds/core/condition/StatusCondition.hpp>
+#include <fastdds/dds/core/condition/WaitSet.hpp>
+#include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/publisher/DataWriter.hpp>
+#include <fastdds/dds/publisher/Publisher.hpp>
+#include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/DataReaderListener.hpp>
+#include <fastdds/dds/subscriber/SampleInfo.hpp>
+#include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/topic/ContentFilteredTopic.hpp>
+#include <fastdds/dds/topic/IContentFilter.hpp>
+#include <fastdds/dds/topic/IContentFilterFactory.hpp>
+#include <fastdds/dds/topic/Topic.hpp>
+#include <fastdds/rtps/attributes/ServerAttributes.h>
+#include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
+#include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
+#include <fastrtps/utils/IPLocator.h>
+
+#include "dds/conversions.hpp"
+#include "deifPubSubTypes.h"
+
+namespace deif::dds {
+
+namespace fdds = eprosima::fastdds::dds;
+using eprosima::fastrtps::Duration_t;
+
+namespace {
+
+Duration_t DdsDuration(double seconds) { return Duration_t(static_cast<long double>(seconds)); }
+
+protocol::SenderKey ToKey(const fdds::InstanceHandle_t& handle) {
+  protocol::SenderKey key{};
+  for (std::size_t i = 0; i < key.size(); ++i) key[i] = handle.value[static_cast<unsigned>(i)];
+  return key;
+}
+
+// The QoS of each topic: one row per topic (docs/ARCHITECTURE.md, "Topics and QoS").
+struct TopicQos {
+  fdds::DurabilityQosPolicyKind durability;
+  int writer_depth;         // per instance (agent id)
+  int reader_depth;
+  bool manual_liveliness;   // MANUAL_BY_TOPIC with network.liveliness_lease_s
+};
+
+TopicQos QosOf(Topic topic, const NetworkConfig& network) {
+  const int history = network.history_steps;
+  switch (topic) {
+    case Topic::kTruth:  // observers only; a late joiner needs no old truth
+      return {fdds::VOLATILE_DURABILITY_QOS, 8, 8, false};
+    case Topic::kRange:  // the roll calls a frozen or cut-off agent missed, up to the history
+      return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, true};
+    case Topic::kContribution:  // what a late or cut-off peer missed, up to the history
+      return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, true};
+    case Topic::kAgentState:  // the latest state of every agent, also for a restarted target
+      return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, 1, 4, true};
+  }
+  return {fdds::VOLATILE_DURABILITY_QOS, 1, 1, false};
+}
+
+template <typename Qos>
+void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config) {
+  qos.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  qos.durability().kind = spec.durability;
+  qos.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+  qos.history().depth = depth;
+  // One instance per agent id (and id 0 is never used). Fast DDS 2.9 defaults to 10
+  // instances: an 11th agent was silently never seen.
+  const int instances = config.agents.count + 1;
+  qos.resource_limits().max_instances = instances;
+  qos.resource_limits().max_samples_per_instance = depth;
+  qos.resource_limits().max_samples = instances * depth;
+  qos.resource_limits().allocated_samples = std::min(instances * depth, 64);
+  if (spec.manual_liveliness) {
+    // AUTOMATIC liveliness does not detect a killed writer in Fast DDS 2.9.1.
+    qos.liveliness().kind = fdds::MANUAL_BY_TOPIC_LIVELINESS_QOS;
+    qos.liveliness().lease_duration = DdsDuration(config.network.liveliness_lease_s);
+    qos.liveliness().announcement_period = DdsDuration(
+        config.network.liveliness_lease_s / config.network.liveliness_assertions_per_lease);
+  }
+  qos.data_sharing().off();
+}
+
+fdds::DataWriterQos WriterQos(Topic topic, const Config& config) {
+  const TopicQos spec = QosOf(topic, config.network);
+  fdds::DataWriterQos qos = fdds::DATAWRITER_QOS_DEFAULT;
+  ApplyCommon(qos, spec, spec.writer_depth, config);
+  // A lost sample is repaired one heartbeat later: Fast DDS's default (3 s) is far longer
+  // than a step (docs/FASTDDS_NOTES.md). Heartbeats are sent only while samples are unacked.
+  auto& times = qos.reliable_writer_qos().times;
+  times.heartbeatPeriod = DdsDuration(config.network.heartbeat_period_s);
+  times.nackResponseDelay = DdsDuration(config.network.nack_response_delay_s);
+  times.nackSupressionDuration = Duration_t(0, 0);
+  qos.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
+  return qos;
+}
+
+fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
+  const TopicQos spec = QosOf(topic, config.network);
+  fdds::DataReaderQos qos = fdds::DATAREADER_QOS_DEFAULT;
+  ApplyCommon(qos, spec, spec.reader_depth, config);
+  auto& times = qos.reliable_reader_qos().times;
+  times.heartbeatResponseDelay = DdsDuration(config.network.heartbeat_response_delay_s);
+  times.initialAcknackDelay = DdsDuration(config.network.heartbeat_response_delay_s);
+  return qos;
+}
+
+fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::string& name) {
+  // Start from the factory default, so that an XML profile named by
+  // FASTRTPS_DEFAULT_PROFILES_FILE (initial peers, transports: docs/RUNNING.md) applies.
+  fdds::DomainParticipantQos qos =
+      fdds::DomainParticipantFactory::get_instance()->get_default_participant_qos();
+  qos.name(name);
+  const NetworkConfig& network = config.network;
+  auto& discovery = qos.wire_protocol().builtin.discovery_config;
+  discovery.leaseDuration = DdsDuration(network.participant_lease_s);
+  discovery.leaseDuration_announcementperiod = DdsDuration(network.participant_announcement_s);
+  if (network.discovery == DiscoveryKind::kServer) {
+    const std::string& address = network.discovery_server;
+    const std::size_t colon = address.rfind(':');
+    eprosima::fastrtps::rtps::RemoteServerAttributes server;
+    server.ReadguidPrefix("44.53.00.5f.45.50.52.4f.53.49.4d.41");  // the server with id 0
+    eprosima::fastrtps::rtps::Locator_t locator;
+    eprosima::fastrtps::rtps::IPLocator::setIPv4(locator, address.substr(0, colon));
+    locator.port = static_cast<std::uint32_t>(std::stoul(address.substr(colon + 1)));
+    server.metatrafficUnicastLocatorList.push_back(locator);
+    discovery.discoveryProtocol = eprosima::fastrtps::rtps::DiscoveryProtocol_t::CLIENT;
+    discovery.m_DiscoveryServers.push_back(server);
+  }
+  if (qos.transport().user_transports.empty()) {
+    qos.transport().use_builtin_transports = false;
+    if (network.transport == TransportKind::kShm) {
+      qos.transport().user_transports.push_back(
+          std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>());
+    }
+    auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
+    udp->sendBufferSize = 1 << 20;
+    udp->receiveBufferSize = 1 << 20;
+    qos.transport().user_transports.push_back(udp);
+  }
+  return qos;
+}
+
+// A content filter on the key, "agent_id = %0", that reads the id straight from the
+// serialized sample: every keyed type of idl/deif.idl starts with its key, a 32-bit
+// agent_id, right after the 4-byte encapsulation header. (Fast DDS's SQL filter would need
+// TypeObjects, which the plain XCDR1 types, readable by other vendors, do not have.) A
+// writer whose participant knows this filter class evaluates it before sending.
+constexpr const char* kAgentIdFilterClass = "DEIF_AGENT_ID";
+
+class AgentIdFilter final : public fdds::IContentFilter {
+ public:
+  explicit AgentIdFilter(std::int32_t id) : id_(id) {}
+  virtual ~AgentIdFilter() = default;
+  bool evaluate(const SerializedPayload& payload, const FilterSampleInfo&,
+                const GUID_t&) const override {
+    if (payload.length < 8 || payload.data == nullptr) return false;
+    const bool little_endian = payload.data[1] == 0x01;
+    std::uint32_t raw = 0;
+    for (int i = 0; i < 4; ++i) {
+      const std::uint32_t byte = payload.data[4 + i];
+      raw |= little_endian ? byte << (8 * i) : byte << (8 * (3 - i));
+    }
+    return static_cast<std::int32_t>(raw) == id_;
+  }
+  std::int32_t id_;
+};
+
+class AgentIdFilterFactory : public fdds::IContentFilterFactory {
+ public:
+  ReturnCode_t create_content_filter(const char*, const char*, const fdds::TopicDataType*,
+                                     const char* expression, const ParameterSeq& parameters,
+                                     fdds::IContentFilter*& filter) override {
+    if (parameters.length() != 1) return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    if (expression != nullptr && std::string(expression) != "agent_id = %0") {
+      return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    }
+    char* end = nullptr;
+    const long id = std::strtol(parameters[0], &end, 10);
+    if (end == parameters[0] || *end != '\0') return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    delete static_cast<AgentIdFilter*>(filter);
+    filter = new AgentIdFilter(static_cast<std::int32_t>(id));
+    return ReturnCode_t::RETCODE_OK;
+  }
+  ReturnCode_t delete_content_filter(const char*, fdds::IContentFilter* filter) override {
+    delete static_cast<AgentIdFilter*>(filter);
+    return ReturnCode_t::RETCODE_OK;
+  }
+};
+
+// Reports every change of a remote writer's liveliness, one call each, from a DDS thread.
+class LivelinessListener : public fdds::DataReaderListener {
+ public:
+  using Callback = std::function<void(const protocol::SenderKey&, bool alive)>;
+  explicit LivelinessListener(Callback callback) : callback_(std::move(callback)) {}
+  void on_liveliness_changed(fdds::DataReader*, const fdds::LivelinessChangedStatus& status) override {
+    if (status.alive_count_change > 0) callback_(ToKey(status.last_publication_handle), true);
+    if (status.alive_count_change < 0) callback_(ToKey(status.last_publication_handle), false);
+  }
+  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& status) override {
+    if (status.current_count_change < 0) callback_(ToKey(status.last_publication_handle), false);
+  }
+
+ private:
+  Callback callback_;
+};
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+
+struct Node::Impl {
+  const Config& config;
+  std::string run_name;
+  fdds::DomainParticipant* participant = nullptr;
+  fdds::Publisher* publisher = nullptr;
+  fdds::Subscriber* subscriber = nullptr;
+  std::map<Topic, fdds::Topic*> topics;
+  std::vector<fdds::ContentFilteredTopic*> filtered;
+  std::map<Topic, fdds::DataWriter*> writers;
+  std::map<Topic, fdds::DataReader*> readers;
+  std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
+  std::set<protocol::SenderKey> own_writers;
+  AgentIdFilterFactory filter_factory;  // registered with the participant
+  fdds::WaitSet waitset;
+  fdds::GuardCondition guard;
+
+  std::mutex events_mutex;
+  std::vector<LivelinessChange> liveliness_events;  // guarded by events_mutex
+
+  // Liveliness asserter.
+  std::mutex assert_mutex;
+  std::condition_variable assert_cv;
+  bool assert_stop = false;
+  std::map<fdds::DataWriter*, Clock::time_point> last_write;  // guarded by assert_mutex
+  std::thread asserter;
+
+  explicit Impl(const Config& c) : config(c) {}
+};
+
+Node::Node(const Config& config, const std::string& participant_name, const std::string& run_name)
+    : impl_(std::make_unique<Impl>(config)) {
+  Impl& d = *impl_;
+  d.run_name = run_name;
+  d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
+      config.network.domain_id, ParticipantQos(config, participant_name));
+  if (d.participant == nullptr) {
+    throw std::runtime_error("cannot create a DDS participant on domain " +
+                             std::to_string(config.network.domain_id));
+  }
+  if (d.participant->register_content_filter_factory(kAgentIdFilterClass, &d.filter_factory) !=
+      ReturnCode_t::RETCODE_OK) {
+    throw std::runtime_error("cannot register the agent id content filter");
+  }
+  const bool ros2 = config.network.ros2_naming;
+  for (Topic topic : kAllTopics) {
+    fdds::TypeSupport support;
+    switch (topic) {
+      case Topic::kTruth: support.reset(new deif_msgs::TruthPubSubType()); break;
+      case Topic::kRange: support.reset(new deif_msgs::RangePubSubType()); break;
+      case Topic::kContribution: support.reset(new deif_msgs::ContributionPubSubType()); break;
+      case Topic::kAgentState: support.reset(new deif_msgs::AgentStatePubSubType()); break;
+    }
+    const TopicNames names = NamesOf(topic);
+    if (ros2) support->setName(names.ros2_type);
+    if (support.register_type(d.participant) != ReturnCode_t::RETCODE_OK) {
+      throw std::runtime_error(std::string("cannot register the type of ") + names.name);
+    }
+    fdds::Topic* t = d.participant->create_topic(ros2 ? names.ros2_name : names.name,
+                                                 support.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+    if (t == nullptr) throw std::runtime_error(std::string("cannot create topic ") + names.name);
+    d.topics[topic] = t;
+  }
+  // Runs are isolated by a partition named after the run (docs/PROTOCOL.md); ROS 2 tools
+  // use the default partition, so with ros2_naming only the run token isolates.
+  fdds::PublisherQos publisher_qos = fdds::PUBLISHER_QOS_DEFAULT;
+  fdds::SubscriberQos subscriber_qos = fdds::SUBSCRIBER_QOS_DEFAULT;
+  if (!ros2) {
+    publisher_qos.partition().push_back(("deif." + run_name).c_str());
+    subscriber_qos.partition().push_back(("deif." + run_name).c_str());
+  }
+  d.publisher = d.participant->create_publisher(publisher_qos);
+  d.subscriber = d.participant->create_subscriber(subscriber_qos);
+  if (d.publisher == nullptr || d.subscriber == nullptr) {
+    throw std::runtime_error("cannot create the DDS publisher/subscriber");
+  }
+  d.waitset.attach_condition(d.guard);
+}
+
+Node::~Node() {
+  Impl& d = *impl_;
+  {
+    std::lock_guard<std::mutex> lock(d.assert_mutex);
+    d.assert_stop = true;
+  }
+  d.assert_cv.notify_all();
+  if (d.asserter.joinable()) d.asserter.join();
+  if (d.participant == nullptr) return;
+  for (auto& [topic, reader] : d.readers) d.waitset.detach_condition(reader->get_statuscondition());
+  d.waitset.detach_condition(d.guard);
+  // Entities before the listeners they point to (the listeners are members of d).
+  d.participant->delete_contained_entities();
+  d.participant->unregister_content_filter_factory(kAgentIdFilterClass);
+  fdds::DomainParticipantFactory::get_instance()->delete_participant(d.participant);
+}
+
+void Node::AddWriter(Topic topic) {
+  Impl& d = *impl_;
+  fdds::DataWriter* writer = d.publisher->create_datawriter(d.topics.at(topic), WriterQos(topic, d.config));
+  if (writer == nullptr) {
+    throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
+  }
+  d.writers[topic] = writer;
+  d.own_writers.insert(ToKey(writer->get_instance_handle()));
+}
+
+void Node::AddReader(const ReaderSpec& spec) {
+  Impl& d = *impl_;
+  fdds::TopicDescription* description = d.topics.at(spec.topic);
+  if (spec.only_id) {
+    const std::string name = std::string(d.topics.at(spec.topic)->get_name()) + "_for_" +
+                             std::to_string(*spec.only_id);
+    fdds::ContentFilteredTopic* filtered = d.participant->create_contentfilteredtopic(
+        name, d.topics.at(spec.topic), "agent_id = %0", {std::to_string(*spec.only_id)},
+        kAgentIdFilterClass);
+    if (filtered == nullptr) throw std::runtime_error("cannot create the content filter " + name);
+    d.filtered.push_back(filtered);
+    description = filtered;
+  }
+  const Topic topic = spec.topic;
+  auto listener = std::make_unique<LivelinessListener>(
+      [&d, topic](const protocol::SenderKey& writer, bool alive) {
+        {
+          std::lock_guard<std::mutex> lock(d.events_mutex);
+          d.liveliness_events.push_back({topic, writer, alive});
+        }
+        d.guard.set_trigger_value(true);
+      });
+  fdds::DataReader* reader = d.subscriber->create_datareader(
+      description, ReaderQos(topic, d.config), listener.get(),
+      fdds::StatusMask::liveliness_changed() << fdds::StatusMask::subscription_matched());
+  if (reader == nullptr) {
+    throw std::runtime_error(std::string("cannot create a reader on ") + NamesOf(topic).name);
+  }
+  reader->get_statuscondition().set_enabled_statuses(fdds::StatusMask::data_available());
+  d.waitset.attach_condition(reader->get_statuscondition());
+  d.readers[topic] = reader;
+  d.listeners[topic] = std::move(listener);
+}
+
+void Node::StartLiveliness() {
+  Impl& d = *impl_;
+  if (d.asserter.joinable()) return;
+  const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(
+      d.config.network.liveliness_lease_s / d.config.network.liveliness_assertions_per_lease));
+  std::vector<fdds::DataWriter*> manual;
+  for (auto& [topic, writer] : d.writers) {
+    if (QosOf(topic, d.config.network).manual_liveliness) manual.push_back(writer);
+  }
+  {
+    std::lock_guard<std::mutex> lock(d.assert_mutex);
+    for (fdds::DataWriter* writer : manual) d.last_write[writer] = Clock::now() - period;
+  }
+  // A write renews a writer's liveliness, so only writers idle for a period assert: in a
+  // busy network every assertion is a message to every matched reader.
+  d.asserter = std::thread([&d, manual, period] {
+    std::unique_lock<std::mutex> lock(d.assert_mutex);
+    while (!d.assert_stop) {
+      const auto now = Clock::now();
+      for (fdds::DataWriter* writer : manual) {
+        if (now - d.last_write[writer] >= period) writer->assert_liveliness();
+      }
+      d.assert_cv.wait_for(lock, period, [&d] { return d.assert_stop; });
+    }
+  });
+}
+
+namespace {
+
+template <typename Idl>
+void WriteSample(Node::Impl& d, Topic topic, Idl sample) {
+  auto it = d.writers.find(topic);
+  if (it == d.writers.end()) throw std::logic_error(std::string("no writer on ") + NamesOf(topic).name);
+  it->second->write(&sample);
+  std::lock_guard<std::mutex> lock(d.assert_mutex);
+  d.last_write[it->second] = Clock::now();
+}
+
+template <typename Idl, typename Msg>
+void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
+  auto it = d.readers.find(topic);
+  if (it == d.readers.end()) return;
+  Idl sample;
+  fdds::SampleInfo info;
+  while (it->second->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK) {
+    if (!info.valid_data) continue;
+    const protocol::SenderKey from = ToKey(info.publication_handle);
+    if (d.own_writers.count(from) > 0) continue;  // our own samples
+    out.emplace_back(Received<Msg>{FromIdl(sample), from});
+  }
+}
+
+}  // namespace
+
+void Node::Write(const protocol::TruthMsg& msg) { WriteSample(*impl_, Topic::kTruth, ToIdl(msg)); }
+void Node::Write(const protocol::RangeMsg& msg) { WriteSample(*impl_, Topic::kRange, ToIdl(msg)); }
+void Node::Write(const protocol::ContributionMsg& msg) {
+  WriteSample(*impl_, Topic::kContribution, ToIdl(msg));
+}
+void Node::Write(const protocol::StateMsg& msg) { WriteSample(*impl_, Topic::kAgentState, ToIdl(msg)); }
+
+std::vector<Event> Node::Wait(Clock::time_point deadline) {
+  Impl& d = *impl_;
+  const auto now = Clock::now();
+  if (deadline > now) {
+    fdds::ConditionSeq active;
+    const double wait_s = std::chrono::duration<double>(deadline - now).count();
+    d.waitset.wait(active, DdsDuration(std::min(wait_s, 3600.0)));
+  }
+  std::vector<Event> events;
+  TakeAll<deif_msgs::Truth, protocol::TruthMsg>(d, Topic::kTruth, events);
+  TakeAll<deif_msgs::Range, protocol::RangeMsg>(d, Topic::kRange, events);
+  TakeAll<deif_msgs::Contribution, protocol::ContributionMsg>(d, Topic::kContribution, events);
+  TakeAll<deif_msgs::AgentState, protocol::StateMsg>(d, Topic::kAgentState, events);
+  std::vector<LivelinessChange> liveliness;
+  {
+    std::lock_guard<std::mutex> lock(d.events_mutex);
+    liveliness.swap(d.liveliness_events);
+    d.guard.set_trigger_value(false);
+  }
+  for (const LivelinessChange& change : liveliness) {
+    if (d.own_writers.count(change.writer) == 0) events.emplace_back(change);
+  }
+  return events;
+}
+
+void Node::Wake() { impl_->guard.set_trigger_value(true); }
+
+bool Node::WaitForAcknowledgments(double seconds) {
+  bool all = true;
+  for (auto& [topic, writer] : impl_->writers) {
+    all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
+  }
+  return all;
+}
+
+protocol::SenderKey Node::WriterKey(Topic topic) const {
+  return ToKey(impl_->writers.at(topic)->get_instance_handle());
+}
+
+int Node::MatchedWriters(Topic topic) const {
+  auto it = impl_->readers.find(topic);
+  if (it == impl_->readers.end()) return 0;
+  fdds::SubscriptionMatchedStatus status;
+  it->second->get_subscription_matched_status(status);
+  return status.current_count;
+}
+
+std::uint64_t RandomInstanceToken() {
+  std::random_device device;
+  const std::uint64_t high = device();
+  const std::uint64_t low = device();
+  const auto now = static_cast<std::uint64_t>(Clock::now().time_since_epoch().count());
+  return ((high << 32) ^ low ^ now) | 1u;  // never 0
+}
+
+}  // namespace deif::dds

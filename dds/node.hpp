@@ -1,0 +1,99 @@
+// One process's place on the DDS network: a participant in the run's partition, a writer
+// and a reader per topic it uses, with the QoS of docs/ARCHITECTURE.md, and an event loop
+// that hands the application every sample and liveliness change in batches on its own
+// thread (a WaitSet, no thread hop per sample). Its interface speaks the protocol's
+// messages only: no Fast DDS type leaves dds/.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "common/config/config.hpp"
+#include "common/protocol/messages.hpp"
+#include "dds/topics.hpp"
+
+namespace deif::dds {
+
+using Clock = std::chrono::steady_clock;
+
+// A sample and the writer that wrote it.
+template <typename M>
+struct Received {
+  M msg;
+  protocol::SenderKey from;
+};
+// A remote writer of `topic` became alive or not alive (liveliness, or it unmatched).
+struct LivelinessChange {
+  Topic topic;
+  protocol::SenderKey writer;
+  bool alive;
+};
+using Event = std::variant<Received<protocol::TruthMsg>, Received<protocol::RangeMsg>,
+                           Received<protocol::ContributionMsg>, Received<protocol::StateMsg>,
+                           LivelinessChange>;
+
+// What a reader receives. kOwnId: only the samples keyed to one agent id (a content filter,
+// evaluated at the writer where it can be).
+struct ReaderSpec {
+  Topic topic;
+  std::optional<AgentId> only_id;
+};
+
+class Node {
+ public:
+  // Creates the participant in config.network.domain_id, in the partition of run_name (no
+  // partition with network.ros2_naming), with network.transport and network.discovery.
+  // Throws std::runtime_error naming what could not be created.
+  Node(const Config& config, const std::string& participant_name, const std::string& run_name);
+  ~Node();  // deletes every entity, then the participant
+  Node(const Node&) = delete;
+  Node& operator=(const Node&) = delete;
+
+  void AddWriter(Topic topic);
+  void AddReader(const ReaderSpec& spec);
+  // Starts asserting the liveliness of every writer with MANUAL_BY_TOPIC liveliness (range,
+  // contribution, agent_state) network.liveliness_assertions_per_lease times per lease,
+  // skipping writers that wrote within that period. Until then they are not alive to peers.
+  void StartLiveliness();
+
+  void Write(const protocol::TruthMsg& msg);
+  void Write(const protocol::RangeMsg& msg);
+  void Write(const protocol::ContributionMsg& msg);
+  void Write(const protocol::StateMsg& msg);
+
+  // Waits until a sample or a liveliness change arrives, Wake() is called, or the
+  // deadline; returns everything that arrived, in order per reader.
+  std::vector<Event> Wait(Clock::time_point deadline);
+  // Thread-safe: makes a Wait() return at once.
+  void Wake();
+
+  // Waits (bounded) until every matched reader acknowledged this node's samples.
+  bool WaitForAcknowledgments(double seconds);
+  // This node's writer of `topic` as peers see it.
+  protocol::SenderKey WriterKey(Topic topic) const;
+  // How many remote writers currently match this node's reader of `topic`.
+  int MatchedWriters(Topic topic) const;
+
+  struct Impl;  // opaque: holds the Fast DDS entities
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+// A steady_clock time point as seconds (the protocol's clock).
+inline double ToSeconds(Clock::time_point t) {
+  return std::chrono::duration<double>(t.time_since_epoch()).count();
+}
+inline Clock::time_point FromSeconds(double s) {
+  return Clock::time_point(std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s)));
+}
+
+// A random 64-bit token, different at every process start (never 0).
+std::uint64_t RandomInstanceToken();
+
+}  // namespace deif::dds

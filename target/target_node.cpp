@@ -1,0 +1,172 @@
+#include "target/target_node.hpp"
+
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <string>
+#include <type_traits>
+
+namespace deif::target {
+
+namespace {
+
+constexpr double kMaxWaitS = 0.5;
+
+void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text) {
+  switch (level) {
+    case protocol::LogLevel::kDebug: log.debug("{}", text); break;
+    case protocol::LogLevel::kInfo: log.info("{}", text); break;
+    case protocol::LogLevel::kWarn: log.warn("{}", text); break;
+    case protocol::LogLevel::kError: log.error("{}", text); break;
+  }
+}
+
+protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
+                                                  const TargetOptions& options) {
+  protocol::TargetProtocol::Options out;
+  out.run = protocol::RunTokenOf(context.run_name);
+  out.start_step = options.start_step;
+  out.hold_for_faults = options.hold_for_faults;
+  return out;
+}
+
+}  // namespace
+
+TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
+    : context_(context),
+      config_(context.config),
+      options_(options),
+      node_(context.config, "target", context.run_name),
+      protocol_(context.config, ProtocolOptions(context, options)) {
+  node_.AddWriter(dds::Topic::kTruth);
+  node_.AddReader({dds::Topic::kAgentState, {}});
+  // A reader of ranges for id 0, which nobody writes: before this target has a range writer
+  // of its own, it matches only another target's (see AnotherTargetInThisRun).
+  node_.AddReader({dds::Topic::kRange, 0});
+  context_.log->info("target up: run '{}', domain {}", context_.run_name, config_.network.domain_id);
+}
+
+TargetNode::~TargetNode() {
+  if (control_thread_.joinable()) control_thread_.detach();  // blocked in a read of stdin
+}
+
+void TargetNode::Stop() {
+  stop_requested_.store(true);
+  node_.Wake();
+}
+
+bool TargetNode::AnotherTargetInThisRun() {
+  const double wait_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
+  const auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
+                                                std::chrono::duration<double>(wait_s));
+  while (!stop_requested_ && dds::Clock::now() < deadline) {
+    node_.Wait(std::min(deadline, dds::Clock::now() + std::chrono::milliseconds(100)));
+    if (node_.MatchedWriters(dds::Topic::kRange) > 0) {
+      context_.log->error("run '{}' already has a target on domain {}", context_.run_name,
+                          config_.network.domain_id);
+      return true;
+    }
+  }
+  return false;
+}
+
+void TargetNode::ReadControl() {
+  std::string line;
+  while (std::getline(std::cin, line)) {
+    unsigned long long step = 0;
+    if (std::sscanf(line.c_str(), "go %llu", &step) == 1) {
+      {
+        std::lock_guard<std::mutex> lock(control_mutex_);
+        go_steps_.push_back(static_cast<StepIndex>(step));
+      }
+      node_.Wake();
+    }
+  }
+}
+
+int TargetNode::Run() {
+  if (AnotherTargetInThisRun()) return protocol::kExitDuplicate;
+  if (stop_requested_) return protocol::kExitOk;
+  node_.AddWriter(dds::Topic::kRange);
+  node_.StartLiveliness();
+  if (!context_.options.out_dir.empty()) {
+    // A restarted target (--start-step or --append) appends to the run's files.
+    const CsvMode mode = options_.start_step || context_.options.append ? CsvMode::kAppend
+                                                                       : CsvMode::kTruncate;
+    const std::filesystem::path dir(context_.options.out_dir);
+    target_csv_.emplace((dir / kTargetCsvSchema.file_name).string(), mode);
+    ranges_csv_.emplace((dir / kRangesCsvSchema.file_name).string(), mode);
+  } else {
+    context_.log->warn("no --out folder: target.csv and ranges.csv are not written");
+  }
+  if (options_.hold_for_faults) control_thread_ = std::thread([this] { ReadControl(); });
+
+  const auto started = dds::Clock::now();
+  protocol_.Start(dds::ToSeconds(started));
+  Execute(protocol_.TakeActions());
+  while (!stop_requested_ && !protocol_.finished()) {
+    auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
+                                            std::chrono::duration<double>(kMaxWaitS));
+    if (const auto next = protocol_.NextDeadline()) deadline = std::min(deadline, dds::FromSeconds(*next));
+    const std::vector<dds::Event> events = node_.Wait(deadline);
+    const double now_s = dds::ToSeconds(dds::Clock::now());
+    for (const dds::Event& event : events) {
+      if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+        protocol_.OnState(state->msg, state->from, now_s);
+      } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
+        if (change->topic == dds::Topic::kAgentState) {
+          protocol_.OnWriterLiveliness(change->writer, change->alive, now_s);
+        }
+      }
+    }
+    std::deque<StepIndex> go;
+    {
+      std::lock_guard<std::mutex> lock(control_mutex_);
+      go.swap(go_steps_);
+    }
+    for (StepIndex step : go) protocol_.OnGo(step, now_s);
+    protocol_.OnTimer(now_s);
+    Execute(protocol_.TakeActions());
+  }
+  const double elapsed_s = std::chrono::duration<double>(dds::Clock::now() - started).count();
+  context_.log->info("{} at step {} after {:.3f} s", stop_requested_ ? "stopped" : "done",
+                     protocol_.current_step(), elapsed_s);
+  for (const auto& [reason, count] : protocol_.rejected_by_reason()) {
+    context_.log->info("  {}: {}", reason, count);
+  }
+  if (!stop_requested_) node_.WaitForAcknowledgments(1.0);  // the last ranges reach the agents
+  return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);
+}
+
+void TargetNode::Execute(std::vector<protocol::TargetAction> actions) {
+  for (protocol::TargetAction& action : actions) {
+    std::visit(
+        [this](auto& a) {
+          using A = std::decay_t<decltype(a)>;
+          namespace act = protocol::target_action;
+          if constexpr (std::is_same_v<A, act::PublishRange>) {
+            node_.Write(a.msg);
+          } else if constexpr (std::is_same_v<A, act::PublishTruth>) {
+            node_.Write(a.msg);
+          } else if constexpr (std::is_same_v<A, act::WriteTruthRow>) {
+            if (target_csv_) target_csv_->Write(a.row);
+          } else if constexpr (std::is_same_v<A, act::WriteRangeRow>) {
+            if (ranges_csv_) ranges_csv_->Write(a.row);
+          } else if constexpr (std::is_same_v<A, act::Hold>) {
+            std::printf("hold %lld %s\n", static_cast<long long>(a.step), a.faults.c_str());
+            std::fflush(stdout);
+          } else if constexpr (std::is_same_v<A, act::Log>) {
+            LogAt(*context_.log, a.level, a.text);
+          } else if constexpr (std::is_same_v<A, act::Finish>) {
+            exit_code_ = a.exit_code;
+            LogAt(*context_.log, a.exit_code == 0 ? protocol::LogLevel::kInfo : protocol::LogLevel::kError,
+                  a.reason);
+          }
+        },
+        action);
+  }
+}
+
+}  // namespace deif::target

@@ -1,0 +1,52 @@
+// deif_target's application: the thin DDS adapter around the target's protocol
+// (common/protocol/target_protocol.hpp): the world, its truth and every agent's range.
+// With --hold-for-faults it prints "hold <step> <faults>" on stdout when it reaches a step
+// with scripted faults and, in lock-step, waits for "go <step>" on stdin (the launcher
+// applies the faults in between), so faults land on their exact step.
+#pragma once
+
+#include <atomic>
+#include <deque>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+#include "common/artefacts/artefacts.hpp"
+#include "common/protocol/target_protocol.hpp"
+#include "dds/application.hpp"
+#include "dds/node.hpp"
+
+namespace deif::target {
+
+struct TargetOptions {
+  std::optional<StepIndex> start_step;  // resume here (a restarted target)
+  bool hold_for_faults = false;
+};
+
+class TargetNode : public dds::Application {
+ public:
+  TargetNode(dds::ProcessContext& context, TargetOptions options);
+  ~TargetNode() override;
+  int Run() override;
+  void Stop() override;
+
+ private:
+  bool AnotherTargetInThisRun();
+  void Execute(std::vector<protocol::TargetAction> actions);
+  void ReadControl();  // the stdin thread: "go <step>" lines
+
+  dds::ProcessContext& context_;
+  const Config& config_;
+  const TargetOptions options_;
+  dds::Node node_;
+  protocol::TargetProtocol protocol_;
+  std::optional<TargetCsv> target_csv_;
+  std::optional<RangesCsv> ranges_csv_;
+  std::atomic<bool> stop_requested_{false};
+  std::optional<int> exit_code_;
+  std::mutex control_mutex_;
+  std::deque<StepIndex> go_steps_;  // guarded by control_mutex_
+  std::thread control_thread_;
+};
+
+}  // namespace deif::target

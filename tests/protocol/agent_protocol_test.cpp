@@ -1,0 +1,450 @@
+// The agent's step protocol, driven through a scripted network (scripted_network.hpp): which
+// contributions it waits for, fuses, fuses late, drops or rejects, and how agents that
+// missed information come back into exact agreement.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "common/protocol/validation.hpp"
+#include "tests/protocol/scripted_network.hpp"
+
+using deif::AgentId;
+using deif::InfoState;
+using deif::StepIndex;
+using deif::Vector2;
+using deif::testing::Envelope;
+using deif::testing::KeyOf;
+using deif::testing::ScriptedNetwork;
+namespace protocol = deif::protocol;
+
+namespace {
+
+constexpr const char* kThreeAgents =
+    "scenario: {steps: 30, dt_s: 0.1}\n"
+    "agents: {count: 3}\n"
+    "network: {history_steps: 8, step_timeout_s: 0.5}\n";
+
+bool IsContribution(const Envelope& e, AgentId from, AgentId to, StepIndex step) {
+  const auto* c = std::get_if<protocol::ContributionMsg>(&e.message);
+  return c != nullptr && e.from == from && e.to == to && c->step == step;
+}
+
+bool SameBits(const InfoState& a, const InfoState& b) { return a.y == b.y && a.Y == b.Y; }
+
+// Every live agent's posterior of step k is bit-identical to agent `reference`'s.
+bool AllAgreeAt(ScriptedNetwork& net, StepIndex k, AgentId reference = 1) {
+  const auto ref = net.agents.at(reference)->PosteriorOf(k);
+  if (!ref) return false;
+  for (auto& [id, agent] : net.agents) {
+    if (net.dead.count(id) > 0) continue;
+    const auto p = agent->PosteriorOf(k);
+    if (!p || !SameBits(*p, *ref)) return false;
+  }
+  return true;
+}
+
+protocol::ContributionMsg ValidContributionFrom(ScriptedNetwork& net, AgentId id, StepIndex step) {
+  for (const auto& c : net.ContributionsOf(id)) {
+    if (c.step == step) return c;
+  }
+  FAIL("agent " << id << " published no contribution for step " << step);
+  return {};
+}
+
+}  // namespace
+
+TEST_CASE("In lock-step every agent fuses the whole roll call and all hold bit-identical estimates",
+          "[protocol]") {
+  // GIVEN three agents on a perfect network
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  // WHEN the run goes to its end
+  net.RunUntil(30);
+  // THEN every agent wrote every step, each with all three contributions, complete
+  for (AgentId id = 1; id <= 3; ++id) {
+    const auto& rows = net.rows.at(id);
+    REQUIRE(rows.size() == 30);
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      CHECK(rows[i].step == static_cast<StepIndex>(i + 1));
+      CHECK(rows[i].fused == 3);
+      CHECK(rows[i].complete);
+    }
+    CHECK(net.exit_codes.at(id) == protocol::kExitOk);
+  }
+  // AND the three estimates are bit-identical at every step
+  for (std::size_t i = 0; i < 30; ++i) {
+    CHECK(net.rows.at(1)[i].estimate_m == net.rows.at(2)[i].estimate_m);
+    CHECK(net.rows.at(1)[i].estimate_m == net.rows.at(3)[i].estimate_m);
+  }
+  net.Pump();  // the last states reach the target
+  CHECK(net.exit_codes.at(deif::testing::kTarget) == protocol::kExitOk);
+}
+
+TEST_CASE("A measured agent contributes (i, I) of eqs (4.49)-(4.51) at its own prediction",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(1);
+  const protocol::ContributionMsg c = ValidContributionFrom(net, 2, 1);
+  // Recompute it by hand from the common prior and the range the target published.
+  const deif::Config& config = net.config;
+  const InfoState prior = deif::Predict(
+      config.filter.motion_model, deif::ToInfoState(deif::InitialState(config),
+                                                    deif::InitialCovariance(config)));
+  const deif::Eif filter(config.filter.motion_model, prior);
+  deif::RangeObservation z;
+  for (const auto& r : net.ranges) {
+    if (r.step == 1 && r.agent_id == 2) {
+      z.agent_id = 2;
+      z.range_m = r.range_m;
+      z.variance_m2 = r.variance_m2;
+      z.p_sensor = r.p_sensor;
+    }
+  }
+  const deif::Contribution expected =
+      deif::ComputeContribution(1, z, filter.PositionEstimate(), config.sensing);
+  CHECK(c.info_vector == expected.info_vector);
+  CHECK(c.info_matrix == expected.info_matrix);
+  CHECK(c.p_sensor == z.p_sensor);
+  // The posterior it was linearised on: the common prior of step 0.
+  CHECK(SameBits(c.basis, deif::ToInfoState(deif::InitialState(config), deif::InitialCovariance(config))));
+}
+
+TEST_CASE("In lock-step an agent waits for a roll-call member's delayed contribution", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(1);
+  // GIVEN agent 3's contribution of step 2 to agent 1 is delayed
+  net.Pump([](const Envelope& e) { return IsContribution(e, 3, 1, 2); });
+  // THEN agent 1 has not written step 2 yet (it waits, within the step timeout)
+  CHECK(net.agents.at(1)->last_written_step() == 1);
+  CHECK(net.agents.at(2)->last_written_step() == 2);
+  // WHEN it arrives
+  net.ReleaseHeld();
+  net.RunUntil(2);
+  // THEN agent 1 writes step 2 with all three, identical to the others
+  CHECK(net.rows.at(1)[1].fused == 3);
+  CHECK(net.rows.at(1)[1].complete);
+  CHECK(AllAgreeAt(net, 2));
+}
+
+TEST_CASE("A contribution that comes after its step was written is fused into its step and the "
+          "agents agree again bit for bit",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  // GIVEN agent 3's contribution of step 3 to agent 1 is held back beyond the step timeout
+  const auto late = [](const Envelope& e) { return IsContribution(e, 3, 1, 3); };
+  net.RunUntil(3, late);  // time moves on while agent 1 waits, up to its step timeout
+  REQUIRE(net.agents.at(1)->last_written_step() >= 3);
+  CHECK(net.rows.at(1)[2].fused == 2);  // step 3 written without it
+  CHECK_FALSE(net.rows.at(1)[2].complete);
+  CHECK(net.agents.at(1)->counters().deadline_misses == 1);
+  CHECK_FALSE(AllAgreeAt(net, 3));
+  // WHEN it finally arrives, a few steps later
+  net.RunUntil(6, late);
+  net.ReleaseHeld();
+  net.RunUntil(7);
+  // THEN it is fused into step 3, and every later posterior equals the other agents'
+  CHECK(net.agents.at(1)->counters().late == 1);
+  for (StepIndex k = 3; k <= 7; ++k) CHECK(AllAgreeAt(net, k));
+}
+
+TEST_CASE("A step that leaves the history incomplete leads to one merge after which every "
+          "agent agrees",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  // GIVEN agent 3's contribution of step 3 never reaches agent 1
+  const auto lose = [](const Envelope& e) { return IsContribution(e, 3, 1, 3); };
+  // WHEN the run goes on past the history (8 steps)
+  net.RunUntil(20, lose);
+  // THEN agent 1 asked for a merge, every agent merged once, and all agree afterwards
+  for (AgentId id = 1; id <= 3; ++id) CHECK(net.agents.at(id)->counters().merges == 1);
+  CHECK(AllAgreeAt(net, 20));
+  CHECK(net.rows.at(1).back().estimate_m == net.rows.at(2).back().estimate_m);
+  CHECK(net.rows.at(3).back().estimate_m == net.rows.at(2).back().estimate_m);
+}
+
+TEST_CASE("A duplicate contribution is dropped, counted and changes nothing", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  const auto before = *net.agents.at(1)->PosteriorOf(3);
+  const protocol::ContributionMsg c = ValidContributionFrom(net, 2, 3);
+  net.agents.at(1)->OnContribution(c, KeyOf(2), net.now);
+  CHECK(net.agents.at(1)->counters().dropped == 1);
+  CHECK(SameBits(*net.agents.at(1)->PosteriorOf(3), before));
+}
+
+TEST_CASE("Peer data is validated before it can touch an estimate", "[protocol][validation]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  protocol::AgentProtocol& agent = *net.agents.at(1);
+  const InfoState before = *agent.PosteriorOf(3);
+  const protocol::ContributionMsg good = ValidContributionFrom(net, 2, 3);
+  std::int64_t rejected = agent.counters().rejected;
+  const auto expect_rejected = [&](protocol::ContributionMsg bad, const deif::testing::SenderKey& from,
+                                   const std::string& reason) {
+    agent.OnContribution(bad, from, net.now);
+    CHECK(agent.counters().rejected == ++rejected);
+    CHECK(agent.counters().by_reason.count("rejected: " + reason) == 1);
+    CHECK(SameBits(*agent.PosteriorOf(3), before));
+  };
+  auto c = good;
+  c.step = 4;  // aimed at the next step, inside the window
+  c.info_vector.x() = std::numeric_limits<double>::quiet_NaN();
+  expect_rejected(c, KeyOf(2), "non_finite");
+  c = good;
+  c.step = 4;
+  c.info_matrix(0, 1) += 1.0;
+  expect_rejected(c, KeyOf(2), "not_symmetric");
+  c = good;
+  c.step = 4;
+  c.info_matrix << -1.0, 0.0, 0.0, 1.0;
+  expect_rejected(c, KeyOf(2), "not_psd");
+  c = good;
+  c.step = 4;
+  c.basis.Y(0, 0) = -5.0;
+  expect_rejected(c, KeyOf(2), "bad_basis");
+  c = good;
+  c.run = 7;  // another run on the same domain
+  expect_rejected(c, KeyOf(2), "other_run");
+  c = good;
+  c.agent_id = 99;
+  expect_rejected(c, KeyOf(9), "unknown_agent_id");
+  c = good;
+  c.agent_id = 1;  // our own id, from someone else
+  expect_rejected(c, KeyOf(9), "agent_id_clash");
+  c = good;
+  c.step = 4;  // a second live writer claiming agent 2
+  expect_rejected(c, KeyOf(9), "agent_id_clash");
+  c = good;
+  c.step = 1000000;
+  expect_rejected(c, KeyOf(2), "step_outside_run");
+  // The run goes on unharmed.
+  net.RunUntil(6);
+  CHECK(AllAgreeAt(net, 6));
+}
+
+TEST_CASE("A contribution from an agent that is not in the step's roll call is not fused",
+          "[protocol][validation]") {
+  ScriptedNetwork net(
+      "scenario: {steps: 30}\n"
+      "agents: {count: 3}\n"
+      "network: {history_steps: 8, step_timeout_s: 0.5, start_timeout_s: 1}\n");
+  // GIVEN agent 3 never comes up, so the target starts with 1 and 2 after its start timeout
+  const auto silent3 = [](const Envelope& e) { return e.from == 3 || e.to == 3; };
+  net.dead.insert(3);
+  net.Start();
+  net.RunUntil(2, silent3);
+  CHECK(net.rows.at(1)[0].fused == 2);
+  // WHEN a contribution claiming to be agent 3's for step 3 arrives (a replay)
+  protocol::ContributionMsg forged = ValidContributionFrom(net, 2, 2);
+  forged.agent_id = 3;
+  forged.step = 3;
+  net.agents.at(1)->OnContribution(forged, KeyOf(3), net.now);
+  net.RunUntil(3, silent3);
+  // THEN it is rejected as not in the roll call, and step 3 fuses 1 and 2 only
+  CHECK(net.agents.at(1)->counters().by_reason.count("rejected: not_in_roll_call") == 1);
+  CHECK(net.rows.at(1)[2].fused == 2);
+  CHECK(AllAgreeAt(net, 3));
+}
+
+TEST_CASE("Ranges are validated: zero variance, a step beyond the run, a second live target",
+          "[protocol][validation]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  protocol::AgentProtocol& agent = *net.agents.at(1);
+  const std::int64_t rejected = agent.counters().rejected;
+  protocol::RangeMsg range;
+  range.run = ScriptedNetwork::kRun;
+  range.agent_id = 1;
+  range.step = 3;
+  range.measured = true;
+  range.range_m = 2.0;
+  range.variance_m2 = 0.0;
+  range.p_sensor = net.rows.at(1).back().position_m;
+  range.roll_call = {1, 2, 3};
+  agent.OnRange(range, KeyOf(0), net.now);
+  CHECK(agent.counters().by_reason.count("rejected: variance_out_of_bounds") == 1);
+  range.variance_m2 = 5.3e-4;
+  range.step = static_cast<StepIndex>(1e12);
+  agent.OnRange(range, KeyOf(0), net.now);
+  CHECK(agent.counters().by_reason.count("rejected: step_outside_run") == 1);
+  range.step = 3;
+  agent.OnRange(range, KeyOf(50), net.now);  // another writer while the target lives
+  net.Liveliness(1, 0, true);
+  agent.OnRange(range, KeyOf(51), net.now);
+  CHECK(agent.counters().by_reason.count("rejected: second_target") >= 1);
+  CHECK(agent.counters().rejected >= rejected + 3);
+  net.RunUntil(5);
+  CHECK(AllAgreeAt(net, 5));
+}
+
+TEST_CASE("A range far from the prediction fails the innovation gate and carries no information",
+          "[protocol][validation]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  // GIVEN the target's range for agent 2 at step 4 is replaced by one 50 m long
+  net.Pump([](const Envelope& e) {
+    const auto* r = std::get_if<protocol::RangeMsg>(&e.message);
+    return r != nullptr && r->agent_id == 2 && r->step == 4;
+  });
+  REQUIRE(net.held.size() == 1);
+  auto& range = std::get<protocol::RangeMsg>(net.held.front().message);
+  range.range_m = 50.0;
+  net.ReleaseHeld();
+  net.RunUntil(4);
+  // THEN agent 2's contribution of step 4 is empty and nobody's estimate jumps
+  const protocol::ContributionMsg c = ValidContributionFrom(net, 2, 4);
+  CHECK(c.info_matrix.isZero(0.0));
+  CHECK(c.info_vector.isZero(0.0));
+  CHECK(net.rows.at(1)[3].complete);  // nobody waited for it
+  CHECK(AllAgreeAt(net, 4));
+  CHECK((net.rows.at(1)[3].estimate_m - net.truth[3].p_true).norm() < 0.5);
+}
+
+TEST_CASE("A lost member is not waited for in lock-step", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  // GIVEN agent 3 dies after the target measured it at step 3: its contribution never comes
+  const auto from3 = [](const Envelope& e) {
+    const auto* c = std::get_if<protocol::ContributionMsg>(&e.message);
+    return e.from == 3 && c != nullptr && c->step >= 3;
+  };
+  net.Pump(from3);
+  CHECK(net.agents.at(1)->last_written_step() == 2);  // waiting for it
+  // WHEN agents 1 and 2 see it lost, during the step
+  net.AdvanceTime(0.1);
+  net.Liveliness(1, 3, false);
+  net.Liveliness(2, 3, false);
+  // THEN agents 1 and 2 wrote step 3 at once, with two contributions
+  REQUIRE(net.agents.at(1)->last_written_step() >= 3);
+  CHECK(net.rows.at(1)[2].fused == 2);
+  CHECK(net.rows.at(1)[2].alive == 2);
+}
+
+TEST_CASE("An agent that joins mid-run adopts the lowest-id contributor's posterior and agrees",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(4);
+  // GIVEN agent 3 is killed and a new process takes its place a few steps later
+  net.Kill(3);
+  net.RunUntil(7);
+  net.dead.erase(3);
+  net.incarnation[3] = 1;
+  net.agents[3] = net.MakeAgent(3, /*token=*/99);
+  net.agents.at(3)->Start(net.now);
+  net.AdvanceTime(0.0);
+  net.RunUntil(12);
+  // THEN it adopted a posterior once and, from its first step on, agrees bit for bit
+  CHECK(net.agents.at(3)->counters().adoptions == 1);
+  const auto& rows = net.rows.at(3);
+  REQUIRE(rows.size() > 4);  // its old rows 1..4, then the new process's
+  const StepIndex first_back = rows[4].step;
+  CHECK(first_back >= 8);
+  for (StepIndex k = first_back; k <= 12; ++k) CHECK(AllAgreeAt(net, k));
+  CHECK(net.rows.at(1).back().fused == 3);  // and it is measured again
+}
+
+TEST_CASE("A member frozen for fewer steps than the history catches up exactly", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  // GIVEN agent 3 is frozen: nothing reaches it, it sends nothing, the others see it lost
+  const auto frozen = [](const Envelope& e) { return e.to == 3 || e.from == 3; };
+  net.frozen.insert(3);
+  net.Pump(frozen);
+  net.Liveliness(1, 3, false);
+  net.Liveliness(2, 3, false);
+  net.Liveliness(deif::testing::kTarget, 3, false);
+  net.RunUntil(8, frozen);
+  CHECK(net.agents.at(3)->last_written_step() == 3);
+  // WHEN it resumes and its backlog arrives
+  net.frozen.erase(3);
+  net.ReleaseHeld();
+  net.RunUntil(8);
+  // THEN it caught up without adopting anything, and agrees with the others bit for bit
+  CHECK(net.agents.at(3)->counters().adoptions == 0);
+  CHECK(net.agents.at(3)->last_written_step() >= 8);
+  for (StepIndex k = 4; k <= 8; ++k) {
+    INFO("step " << k);
+    CHECK(AllAgreeAt(net, k));
+  }
+}
+
+TEST_CASE("In real time a step is written at its deadline with what arrived, and a step without "
+          "a range on the clock",
+          "[protocol]") {
+  ScriptedNetwork net(
+      "scenario: {steps: 20, mode: realtime, period_s: 0.1}\n"
+      "agents: {count: 3}\n"
+      "network: {history_steps: 8, deadline_fraction: 0.5}\n");
+  net.Start();
+  net.Pump();
+  // The target published step 1 at t = 0; everything arrives at once: complete.
+  CHECK(net.agents.at(1)->last_written_step() == 1);
+  // GIVEN agent 3's contribution of step 2 to agent 1 is late
+  net.AdvanceTime(0.1);
+  net.Pump([](const Envelope& e) { return IsContribution(e, 3, 1, 2); });
+  CHECK(net.agents.at(1)->last_written_step() == 1);  // before its deadline it waits
+  net.AdvanceTime(0.06);                              // past the deadline (0.05 s)
+  CHECK(net.agents.at(1)->last_written_step() == 2);
+  CHECK(net.agents.at(1)->counters().deadline_misses == 1);
+  // AND GIVEN the target's range for agent 1 at step 3 never comes in time
+  net.AdvanceTime(0.04);  // t = 0.2: step 3 is published
+  net.Pump([](const Envelope& e) {
+    const auto* r = std::get_if<protocol::RangeMsg>(&e.message);
+    return (r != nullptr && r->agent_id == 1 && r->step == 3) || IsContribution(e, 3, 1, 2);
+  });
+  net.AdvanceTime(0.06);
+  // THEN step 3 is written on the clock anyway
+  CHECK(net.agents.at(1)->last_written_step() == 3);
+  // AND when the late messages come, they are fused into their steps: the agents agree
+  net.ReleaseHeld();
+  net.Pump();
+  net.AdvanceTime(0.1);
+  net.Pump();
+  CHECK(net.agents.at(1)->counters().late >= 1);
+  CHECK(AllAgreeAt(net, 3));
+}
+
+TEST_CASE("The target holds a faulted step until told to go, and leaves a killed agent out of "
+          "its roll call",
+          "[protocol]") {
+  ScriptedNetwork net(
+      "scenario: {steps: 10}\n"
+      "agents: {count: 3}\n"
+      "faults: [{step: 4, action: kill, agent: 2}]\n",
+      /*hold_for_faults=*/true);
+  net.Start();
+  net.RunUntil(3);
+  net.Pump();
+  // THEN the target holds step 4 for the fault
+  REQUIRE(net.holds == std::vector<StepIndex>{4});
+  CHECK(net.target->current_step() == 4);
+  CHECK(net.agents.at(1)->last_written_step() == 3);
+  // WHEN agent 2 is killed and the target told to go, it waits to see agent 2 lost
+  net.Kill(2);
+  net.target->OnGo(4, net.now);
+  net.Pump();
+  net.RunUntil(10);
+  // THEN step 4's roll call is {1, 3}: the survivors fuse two from step 4 on
+  for (AgentId id : {1, 3}) {
+    CHECK(net.rows.at(id)[3].fused == 2);
+    CHECK(net.rows.at(id)[3].complete);
+  }
+  for (const auto& r : net.ranges) {
+    if (r.step >= 4) CHECK(r.agent_id != 2);
+  }
+}

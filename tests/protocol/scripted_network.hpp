@@ -1,0 +1,240 @@
+// A scripted network for the protocol tests: a real TargetProtocol and real AgentProtocols
+// whose messages wait in one queue until the test delivers them, in order, or holds,
+// drops, duplicates or reorders them. Time moves only when the test says so. (PX4's EKF
+// fusion-logic tests drive the filter with a sensor simulator the same way.)
+#pragma once
+
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "common/config/config.hpp"
+#include "common/protocol/agent_protocol.hpp"
+#include "common/protocol/target_protocol.hpp"
+
+namespace deif::testing {
+
+using protocol::AgentProtocol;
+using protocol::ContributionMsg;
+using protocol::RangeMsg;
+using protocol::SenderKey;
+using protocol::StateMsg;
+using protocol::TargetProtocol;
+
+using Message = std::variant<RangeMsg, ContributionMsg, StateMsg>;
+inline constexpr int kTarget = 0;
+
+struct Envelope {
+  int from = 0;
+  int to = 0;
+  Message message;
+};
+
+inline SenderKey KeyOf(int node, int incarnation = 0) {
+  SenderKey key{};
+  key[0] = 0x7e;
+  key[1] = static_cast<std::uint8_t>(node);
+  key[2] = static_cast<std::uint8_t>(incarnation);
+  return key;
+}
+
+class ScriptedNetwork {
+ public:
+  explicit ScriptedNetwork(const std::string& yaml, bool hold_for_faults = false)
+      : config(ParseConfig(yaml, "inline")) {
+    for (AgentId id = 1; id <= config.agents.count; ++id) {
+      agents[id] = MakeAgent(id);
+    }
+    TargetProtocol::Options options;
+    options.run = kRun;
+    options.hold_for_faults = hold_for_faults;
+    target = std::make_unique<TargetProtocol>(config, options);
+  }
+
+  static constexpr protocol::RunToken kRun = 42;
+
+  std::unique_ptr<AgentProtocol> MakeAgent(AgentId id, std::uint64_t token = 0) {
+    AgentProtocol::Options options;
+    options.run = kRun;
+    options.instance_token = token == 0 ? static_cast<std::uint64_t>(id) : token;
+    return std::make_unique<AgentProtocol>(config, id, options);
+  }
+
+  void Start() {
+    for (auto& [id, agent] : agents) {
+      agent->Start(now);
+      Collect(id);
+    }
+    target->Start(now);
+    CollectTarget();
+  }
+
+  // Delivers queued messages in order until none is left; a message for which `hold`
+  // returns true is set aside in `held` instead.
+  void Pump(const std::function<bool(const Envelope&)>& hold = nullptr) {
+    while (!queue.empty()) {
+      Envelope e = std::move(queue.front());
+      queue.pop_front();
+      if (hold && hold(e)) {
+        held.push_back(std::move(e));
+        continue;
+      }
+      Deliver(e);
+    }
+  }
+
+  // Delivers one envelope now.
+  void Deliver(const Envelope& e) {
+    if (e.to == kTarget) {
+      if (dead.count(kTarget) == 0) {
+        target->OnState(std::get<StateMsg>(e.message), KeyOf(e.from, incarnation[e.from]), now);
+        CollectTarget();
+      }
+      return;
+    }
+    if (dead.count(e.to) > 0) return;
+    AgentProtocol& agent = *agents.at(e.to);
+    const SenderKey from = KeyOf(e.from, incarnation[e.from]);
+    if (const auto* range = std::get_if<RangeMsg>(&e.message)) agent.OnRange(*range, from, now);
+    if (const auto* c = std::get_if<ContributionMsg>(&e.message)) agent.OnContribution(*c, from, now);
+    Collect(e.to);
+  }
+
+  void ReleaseHeld() {
+    std::deque<Envelope> release;
+    release.swap(held);
+    for (Envelope& e : release) queue.push_back(std::move(e));
+  }
+
+  // Moves time on and fires every due timer.
+  void AdvanceTime(double dt_s) {
+    now += dt_s;
+    for (auto& [id, agent] : agents) {
+      if (dead.count(id) > 0 || frozen.count(id) > 0) continue;
+      agent->OnTimer(now);
+      Collect(id);
+    }
+    if (dead.count(kTarget) == 0) {
+      target->OnTimer(now);
+      CollectTarget();
+    }
+  }
+
+  // Tells `reader` that `writer`'s liveliness changed.
+  void Liveliness(int reader, int writer, bool alive) {
+    const SenderKey key = KeyOf(writer, incarnation[writer]);
+    if (reader == kTarget) {
+      target->OnWriterLiveliness(key, alive, now);
+      CollectTarget();
+    } else {
+      agents.at(reader)->OnWriterLiveliness(key, alive, now);
+      Collect(reader);
+    }
+  }
+  // Everyone sees `writer` lost (a kill).
+  // What it had queued dies with it (its peers see it lost a lease after its last message).
+  void Kill(int node) {
+    dead.insert(node);
+    for (auto it = queue.begin(); it != queue.end();) it = it->from == node ? queue.erase(it) : it + 1;
+    for (auto& [id, agent] : agents) {
+      if (id != node && dead.count(id) == 0) Liveliness(id, node, false);
+    }
+    if (node != kTarget) Liveliness(kTarget, node, false);
+  }
+
+  // Delivers messages one at a time until every live agent wrote `step` (moving time on
+  // only when nothing is queued); messages for which `hold` returns true are set aside.
+  void RunUntil(StepIndex step, const std::function<bool(const Envelope&)>& hold = nullptr) {
+    for (int guard = 0; guard < 1000000; ++guard) {
+      bool all = true;
+      for (auto& [id, agent] : agents) {
+        if (dead.count(id) == 0 && frozen.count(id) == 0 && agent->last_written_step() < step &&
+            !agent->finished()) {
+          all = false;
+        }
+      }
+      if (all) return;
+      if (queue.empty()) {
+        AdvanceTime(0.01);
+        continue;
+      }
+      Envelope e = std::move(queue.front());
+      queue.pop_front();
+      if (hold && hold(e)) {
+        held.push_back(std::move(e));
+        continue;
+      }
+      Deliver(e);
+    }
+  }
+
+  std::vector<ContributionMsg> ContributionsOf(AgentId id) const {
+    std::vector<ContributionMsg> out;
+    auto it = published_contributions.find(id);
+    if (it != published_contributions.end()) out = it->second;
+    return out;
+  }
+
+  Config config;
+  std::map<AgentId, std::unique_ptr<AgentProtocol>> agents;
+  std::unique_ptr<TargetProtocol> target;
+  std::deque<Envelope> queue;
+  std::deque<Envelope> held;
+  std::set<int> dead;
+  std::set<int> frozen;  // no timers (a SIGSTOPped process); hold its messages yourself
+  std::map<int, int> incarnation;
+  std::map<AgentId, std::vector<AgentRow>> rows;
+  std::map<AgentId, std::vector<ContributionMsg>> published_contributions;
+  std::map<AgentId, std::vector<StateMsg>> published_states;
+  std::map<AgentId, std::vector<std::string>> logs;
+  std::map<AgentId, int> exit_codes;
+  std::vector<TargetRow> truth;
+  std::vector<RangeRow> ranges;
+  std::vector<StepIndex> holds;
+  double now = 0.0;
+
+ private:
+  void Collect(AgentId id) {
+    for (auto& action : agents.at(id)->TakeActions()) {
+      if (auto* c = std::get_if<protocol::agent_action::PublishContribution>(&action)) {
+        published_contributions[id].push_back(c->msg);
+        for (auto& [peer, agent] : agents) {
+          if (peer != id) queue.push_back({id, peer, c->msg});
+        }
+      } else if (auto* s = std::get_if<protocol::agent_action::PublishState>(&action)) {
+        published_states[id].push_back(s->msg);
+        queue.push_back({id, kTarget, s->msg});
+      } else if (auto* r = std::get_if<protocol::agent_action::WriteRow>(&action)) {
+        rows[id].push_back(r->row);
+      } else if (auto* l = std::get_if<protocol::agent_action::Log>(&action)) {
+        logs[id].push_back(l->text);
+      } else if (auto* f = std::get_if<protocol::agent_action::Finish>(&action)) {
+        exit_codes[id] = f->exit_code;
+      }
+    }
+  }
+
+  void CollectTarget() {
+    for (auto& action : target->TakeActions()) {
+      if (auto* r = std::get_if<protocol::target_action::PublishRange>(&action)) {
+        queue.push_back({kTarget, r->msg.agent_id, r->msg});
+      } else if (auto* t = std::get_if<protocol::target_action::WriteTruthRow>(&action)) {
+        truth.push_back(t->row);
+      } else if (auto* rr = std::get_if<protocol::target_action::WriteRangeRow>(&action)) {
+        ranges.push_back(rr->row);
+      } else if (auto* h = std::get_if<protocol::target_action::Hold>(&action)) {
+        holds.push_back(h->step);
+      } else if (auto* l = std::get_if<protocol::target_action::Log>(&action)) {
+        logs[kTarget].push_back(l->text);
+      } else if (auto* f = std::get_if<protocol::target_action::Finish>(&action)) {
+        exit_codes[kTarget] = f->exit_code;
+      }
+    }
+  }
+};
+
+}  // namespace deif::testing
