@@ -57,8 +57,9 @@ bool AgentNode::AnotherProcessHasThisId() {
   const auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
                                                 std::chrono::duration<double>(wait_s));
   while (!stop_requested_ && dds::Clock::now() < deadline) {
-    for (const dds::Event& event : node_.Wait(deadline)) {
+    for (dds::Event& event : node_.Wait(deadline)) {
       const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event);
+      if (state == nullptr) early_events_.push_back(std::move(event));
       if (state != nullptr && state->msg.agent_id == id_ &&
           state->msg.run == protocol::RunTokenOf(context_.run_name) &&
           state->msg.instance_token != instance_token_) {
@@ -83,6 +84,8 @@ int AgentNode::Run() {
     context_.log->warn("no --out folder: {} is not written", AgentCsvName(id_));
   }
   protocol_.Start(dds::ToSeconds(dds::Clock::now()));
+  for (const dds::Event& event : early_events_) Dispatch(event, dds::ToSeconds(dds::Clock::now()));
+  early_events_.clear();
   Execute(protocol_.TakeActions());
   context_.log->info("published the initial state; waiting for the target");
 
@@ -93,6 +96,7 @@ int AgentNode::Run() {
     const std::vector<dds::Event> events = node_.Wait(deadline);
     const double now_s = dds::ToSeconds(dds::Clock::now());
     for (const dds::Event& event : events) Dispatch(event, now_s);
+    protocol_.OnPeersMatched(node_.MatchedWriters(dds::Topic::kContribution), now_s);
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
   }

@@ -37,6 +37,7 @@ class AgentNode : public dds::Application {
   std::optional<AgentCsv> csv_;
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;
+  std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
 };
 
 }  // namespace deif::agent

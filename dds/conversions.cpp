@@ -126,6 +126,7 @@ deif_msgs::AgentState ToIdl(const protocol::StateMsg& m) {
   out.deadline_misses(m.deadline_misses);
   out.rejected(m.rejected);
   out.dropped(m.dropped);
+  out.matched(m.matched);
   return out;
 }
 
@@ -145,6 +146,7 @@ protocol::StateMsg FromIdl(const deif_msgs::AgentState& m) {
   out.deadline_misses = m.deadline_misses();
   out.rejected = m.rejected();
   out.dropped = m.dropped();
+  out.matched = m.matched();
   return out;
 }
 

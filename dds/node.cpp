@@ -208,17 +208,20 @@ class AgentIdFilterFactory : public fdds::IContentFilterFactory {
 class LivelinessListener : public fdds::DataReaderListener {
  public:
   using Callback = std::function<void(const protocol::SenderKey&, bool alive)>;
-  explicit LivelinessListener(Callback callback) : callback_(std::move(callback)) {}
+  LivelinessListener(Callback callback, std::function<void()> wake)
+      : callback_(std::move(callback)), wake_(std::move(wake)) {}
   void on_liveliness_changed(fdds::DataReader*, const fdds::LivelinessChangedStatus& status) override {
     if (status.alive_count_change > 0) callback_(ToKey(status.last_publication_handle), true);
     if (status.alive_count_change < 0) callback_(ToKey(status.last_publication_handle), false);
   }
   void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& status) override {
     if (status.current_count_change < 0) callback_(ToKey(status.last_publication_handle), false);
+    if (status.current_count_change > 0) wake_();  // the application may want to know
   }
 
  private:
   Callback callback_;
+  std::function<void()> wake_;
 };
 
 }  // namespace
@@ -351,7 +354,8 @@ void Node::AddReader(const ReaderSpec& spec) {
           d.liveliness_events.push_back({topic, writer, alive});
         }
         d.guard.set_trigger_value(true);
-      });
+      },
+      [&d] { d.guard.set_trigger_value(true); });
   fdds::DataReader* reader = d.subscriber->create_datareader(
       description, ReaderQos(topic, d.config), listener.get(),
       fdds::StatusMask::liveliness_changed() << fdds::StatusMask::subscription_matched());

@@ -62,7 +62,9 @@ bool TargetNode::AnotherTargetInThisRun() {
   const auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
                                                 std::chrono::duration<double>(wait_s));
   while (!stop_requested_ && dds::Clock::now() < deadline) {
-    node_.Wait(std::min(deadline, dds::Clock::now() + std::chrono::milliseconds(100)));
+    for (dds::Event& event : node_.Wait(std::min(deadline, dds::Clock::now() + std::chrono::milliseconds(100)))) {
+      early_events_.push_back(std::move(event));
+    }
     if (node_.MatchedWriters(dds::Topic::kRange) > 0) {
       context_.log->error("run '{}' already has a target on domain {}", context_.run_name,
                           config_.network.domain_id);
@@ -105,6 +107,8 @@ int TargetNode::Run() {
 
   const auto started = dds::Clock::now();
   protocol_.Start(dds::ToSeconds(started));
+  for (const dds::Event& event : early_events_) Dispatch(event, dds::ToSeconds(started));
+  early_events_.clear();
   Execute(protocol_.TakeActions());
   while (!stop_requested_ && !protocol_.finished()) {
     auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
@@ -112,15 +116,7 @@ int TargetNode::Run() {
     if (const auto next = protocol_.NextDeadline()) deadline = std::min(deadline, dds::FromSeconds(*next));
     const std::vector<dds::Event> events = node_.Wait(deadline);
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    for (const dds::Event& event : events) {
-      if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
-        protocol_.OnState(state->msg, state->from, now_s);
-      } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
-        if (change->topic == dds::Topic::kAgentState) {
-          protocol_.OnWriterLiveliness(change->writer, change->alive, now_s);
-        }
-      }
-    }
+    for (const dds::Event& event : events) Dispatch(event, now_s);
     std::deque<StepIndex> go;
     {
       std::lock_guard<std::mutex> lock(control_mutex_);
@@ -138,6 +134,16 @@ int TargetNode::Run() {
   }
   if (!stop_requested_) node_.WaitForAcknowledgments(1.0);  // the last ranges reach the agents
   return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);
+}
+
+void TargetNode::Dispatch(const dds::Event& event, double now_s) {
+  if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+    protocol_.OnState(state->msg, state->from, now_s);
+  } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
+    if (change->topic == dds::Topic::kAgentState) {
+      protocol_.OnWriterLiveliness(change->writer, change->alive, now_s);
+    }
+  }
 }
 
 void TargetNode::Execute(std::vector<protocol::TargetAction> actions) {

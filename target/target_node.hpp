@@ -34,6 +34,7 @@ class TargetNode : public dds::Application {
   bool AnotherTargetInThisRun();
   void Execute(std::vector<protocol::TargetAction> actions);
   void ReadControl();  // the stdin thread: "go <step>" lines
+  void Dispatch(const dds::Event& event, double now_s);
 
   dds::ProcessContext& context_;
   const Config& config_;
@@ -47,6 +48,7 @@ class TargetNode : public dds::Application {
   std::mutex control_mutex_;
   std::deque<StepIndex> go_steps_;  // guarded by control_mutex_
   std::thread control_thread_;
+  std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
 };
 
 }  // namespace deif::target

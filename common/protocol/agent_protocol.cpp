@@ -202,6 +202,17 @@ void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, doub
   Advance(now_s);
 }
 
+void AgentProtocol::OnPeersMatched(int matched, double now_s) {
+  (void)now_s;
+  if (matched == matched_) return;
+  matched_ = matched;
+  if (started_ && !ever_opened_ && !finished_) {
+    StateMsg msg = MakeState(0, initial_, 0, true);
+    msg.alive = config_.agents.count;
+    Publish(msg);
+  }
+}
+
 void AgentProtocol::OnTimer(double now_s) {
   if (finished_ || !started_) return;
   Advance(now_s);
@@ -623,7 +634,7 @@ InfoState AgentProtocol::BaseOf(Record& r) {
     for (std::size_t i = 1; i < distinct.size(); ++i) {
       merged = CovarianceIntersection(merged, *distinct[i]);
     }
-    if (!r.merged) {
+    if (!r.merged && distinct.size() > 1) {
       r.merged = true;
       ++counters_.merges;
       Log(LogLevel::kWarn, "step " + std::to_string(r.step) + ": merged " +
@@ -780,6 +791,7 @@ StateMsg AgentProtocol::MakeState(StepIndex step, const InfoState& posterior, in
   msg.deadline_misses = counters_.deadline_misses;
   msg.rejected = counters_.rejected;
   msg.dropped = counters_.dropped;
+  msg.matched = matched_;
   return msg;
 }
 

@@ -98,6 +98,10 @@ class AgentProtocol {
   // range writer.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
   void OnTimer(double now_s);
+  // How many peers' contribution writers this agent's transport has matched. Before the
+  // first step it is republished in the initial state, so the target can start only when
+  // every agent can hear every other (docs/PROTOCOL.md, "Start").
+  void OnPeersMatched(int matched, double now_s);
 
   // When OnTimer should next be called (nullopt: only events can move the protocol on).
   std::optional<double> NextDeadline() const;
@@ -214,6 +218,7 @@ class AgentProtocol {
   std::set<SenderKey> alive_writers_;
   std::optional<SenderKey> target_writer_;
   bool target_alive_ = false;  // the bound target writer: alive until seen lost
+  int matched_ = -1;
   double last_target_contact_s_ = 0.0;
   bool target_silent_logged_ = false;
 };

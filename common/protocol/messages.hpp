@@ -74,6 +74,7 @@ struct StateMsg {
   std::int64_t deadline_misses = 0;     // steps finished incomplete so far
   std::int64_t rejected = 0;
   std::int64_t dropped = 0;
+  int matched = -1;                     // peers' contribution writers matched (-1: unknown)
 };
 
 // deif/truth: target -> observers (logging and metrics only; agents never read it).

@@ -147,7 +147,16 @@ void TargetProtocol::Advance(double now_s) {
         // A restarted target finds running agents over a few announcements: it waits until
         // no new agent has appeared for a while.
         const double settle_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
-        const bool everyone = alive.size() >= static_cast<std::size_t>(config_.agents.count);
+        // Everyone is here, and every agent hears every other: its reader matched the
+        // contribution writers of all (its own included). Agents that do not report it
+        // (matched < 0) are not waited for.
+        bool all_matched = true;
+        for (AgentId id : alive) {
+          const int matched = agents_.at(id).latest->matched;
+          all_matched = all_matched && (matched < 0 || matched >= config_.agents.count);
+        }
+        const bool everyone =
+            alive.size() >= static_cast<std::size_t>(config_.agents.count) && all_matched;
         const bool settled = resuming && now_s - start_s_ >= settle_s &&
                              now_s - last_new_agent_s_ >= settle_s && !alive.empty();
         const bool timed_out = now_s - start_s_ >= config_.network.start_timeout_s;

@@ -1,0 +1,533 @@
+"""Launch a target and N agents as separate OS processes, on this host or on K
+network-namespace hosts, apply scripted faults on their exact step, and collect one run
+folder (docs/RUNNING.md, docs/ARTEFACTS.md).
+
+Faults: the target is started with --hold-for-faults. In lock-step it stops before a step
+with faults and prints "hold K"; the launcher applies them (kill -9, SIGSTOP, SIGCONT,
+restart) and answers "go K"; the target then waits until the network sees the fault (a
+killed agent lost, a resumed one caught up) before it publishes step K. So a faulted
+lock-step run is reproducible bit for bit from its seed. In real time the target goes on
+and the launcher applies the faults as soon as it reads "hold K".
+
+Every process dies with the launcher (SIGKILL on parent death), on every path.
+"""
+import datetime
+import json
+import math
+import os
+import queue
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+from . import artefacts, config as cfg, hosts as hosts_mod, paths
+
+SHM_DIR = "/dev/shm"
+SHM_PREFIXES = ("fastrtps_", "sem.fastrtps_", "fast_datasharing_")
+FAULT_ACTIONS = ("kill", "stop", "cont", "restart_target")
+
+
+class LaunchError(Exception):
+    """Bad arguments or config: nothing was started. str() is one line."""
+
+
+class Interrupted(Exception):
+    def __init__(self, signum):
+        super().__init__(f"signal {signum}")
+        self.signum = signum
+
+
+@dataclass
+class Fault:
+    step: int
+    action: str
+    agent: int = None
+    origin: str = "config"        # "config", or the command-line flag that asked for it
+    applied_unix_s: float = None
+    applied_at_step: int = None
+
+    @staticmethod
+    def parse(text, action):
+        """'STEP:ID' for agent faults, 'STEP' for restart_target."""
+        flag = "--" + action.replace("_", "-")
+        try:
+            if action == "restart_target":
+                return Fault(int(text), action, None, f"{flag} {text}")
+            step, agent = text.split(":")
+            return Fault(int(step), action, int(agent), f"{flag} {text}")
+        except ValueError:
+            want = "STEP" if action == "restart_target" else "STEP:ID"
+            raise LaunchError(f"{flag} {text}: expected {want} (integers)")
+
+    def as_config(self):
+        entry = {"step": self.step, "action": self.action}
+        if self.action != "restart_target":
+            entry["agent"] = self.agent
+        return entry
+
+
+@dataclass
+class Partition:
+    step: int
+    seconds: float
+    host: int
+    cut_unix_s: float = None
+    cut_at_step: int = None
+    healed_unix_s: float = None
+    healed_at_step: int = None
+
+    @staticmethod
+    def parse(text):
+        try:
+            step, seconds, host = text.split(":")
+            p = Partition(int(step), float(seconds), int(host))
+        except ValueError:
+            raise LaunchError(f"--partition {text}: expected STEP:SECONDS:HOST")
+        if p.step < 1 or not (0 < p.seconds < 3600) or p.host < 1:
+            raise LaunchError(f"--partition {text}: need STEP >= 1, 0 < SECONDS < 3600, HOST >= 1")
+        return p
+
+
+@dataclass
+class Proc:
+    name: str
+    argv: list
+    host: int = 1
+    popen: subprocess.Popen = None
+    log_path: str = ""
+    expected_death: bool = False  # killed on purpose by a scripted fault
+    stopped: bool = False
+    exit_status: int = None
+    restarts: int = 0
+
+
+@dataclass
+class RunResult:
+    out_dir: str
+    ok: bool
+    summary: dict = field(default_factory=dict)
+
+
+def shm_snapshot():
+    try:
+        return {n for n in os.listdir(SHM_DIR) if n.startswith(SHM_PREFIXES)}
+    except OSError:
+        return set()
+
+
+def _shm_in_use():
+    used = set()
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/maps") as f:
+                for line in f:
+                    i = line.find(SHM_DIR + "/")
+                    if i >= 0:
+                        used.add(os.path.basename(line[i:].strip()))
+        except OSError:
+            continue
+    return used
+
+
+def shm_cleanup(before):
+    """Removes the Fast DDS shared-memory files our run left (kill -9 leaves them) that no
+    live process maps."""
+    leftovers = shm_snapshot() - before
+    if not leftovers:
+        return 0
+    removed = 0
+    for name in sorted(leftovers - _shm_in_use()):
+        try:
+            os.unlink(os.path.join(SHM_DIR, name))
+            removed += 1
+        except OSError:
+            pass
+    return removed
+
+
+def default_out_dir(config_path):
+    stem = os.path.splitext(os.path.basename(config_path))[0]
+    return os.path.join(paths.ROOT, "runs",
+                        f"{stem}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}")
+
+
+class Launcher:
+    def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
+                 overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
+                 progress=True, log=sys.stderr, timeout_s=None):
+        self.log = log
+        self.progress = progress and hasattr(log, "isatty") and log.isatty()
+        if hosts < 1:
+            raise LaunchError(f"--hosts {hosts}: must be >= 1")
+        if not 0.0 <= loss < 1.0:
+            raise LaunchError(f"--loss: must be in [0, 100) percent (got {loss * 100:g})")
+        if (loss > 0 or partitions) and hosts < 2:
+            raise LaunchError("--loss and --partition need --hosts 2 or more (they act on the "
+                              "links between hosts)")
+        for p in partitions:
+            if p.host > hosts:
+                raise LaunchError(f"--partition {p.step}:{p.seconds:g}:{p.host}: there are only "
+                                  f"{hosts} hosts")
+        if hosts > 1:
+            try:
+                hosts_mod.require_root()
+            except hosts_mod.HostsError as e:
+                raise LaunchError(str(e))
+
+        # The effective config: the C++ parser's verdict on the file plus every override.
+        sets = list(overrides)
+        if agents is not None:
+            sets.append(f"agents.count={agents}")
+        if steps is not None:
+            sets.append(f"scenario.steps={steps}")
+        if seed is not None:
+            sets.append(f"scenario.seed={seed}")
+        if domain is not None:
+            sets.append(f"network.domain_id={domain}")
+        if hosts > 1:
+            sets.append("network.transport=udp")  # shared memory would cross the "hosts"
+        try:
+            resolved = cfg.resolve(config_path, sets)
+        except cfg.ConfigRefused as e:
+            raise LaunchError(str(e))
+        file_faults = [Fault(int(f["step"]), f["action"], f.get("agent"))
+                       for f in resolved.get("faults") or []]
+        extra = list(faults)
+        if extra:
+            sets.append("faults=" + cfg.flow([f.as_config() for f in file_faults + extra]))
+            try:
+                resolved = cfg.resolve(config_path, sets)
+            except cfg.ConfigRefused as e:
+                raise LaunchError(self._blame_fault(str(e), len(file_faults), extra))
+        self.cfg = resolved
+        self.faults = sorted(file_faults + extra, key=lambda f: f.step)
+        self.n = int(resolved["agents"]["count"])
+        self.steps = int(resolved["scenario"]["steps"])
+        self.domain = int(resolved["network"]["domain_id"])
+        self.realtime = resolved["scenario"]["mode"] == "realtime"
+        self.partitions = sorted(partitions, key=lambda p: p.step)
+        self.hosts_count = hosts
+        self.loss = loss
+        self.hosts = None
+        self.run_name = run_name or (
+            f"{os.path.splitext(os.path.basename(config_path))[0][:20]}-"
+            f"{datetime.datetime.now().strftime('%H%M%S')}-{random.randrange(16**4):04x}")
+        self.timeout_s = timeout_s if timeout_s is not None else self._default_timeout()
+
+        # The run folder: new, or empty.
+        self.out_dir = os.path.abspath(out_dir)
+        if os.path.exists(self.out_dir) and (not os.path.isdir(self.out_dir) or os.listdir(self.out_dir)):
+            raise LaunchError(f"--out {out_dir}: exists and is not an empty folder (runs never "
+                              "overwrite or mix; choose another folder or remove it)")
+        try:
+            os.makedirs(os.path.join(self.out_dir, "logs"), exist_ok=True)
+            self.config_path = os.path.join(self.out_dir, "config.yaml")
+            with open(self.config_path, "w") as f:
+                f.write(cfg.canonical_yaml(config_path, sets))
+        except OSError as e:
+            raise LaunchError(f"--out {out_dir}: cannot write there ({e.strerror})")
+        self.source_config = config_path
+        self.overrides = sets
+        self.procs = {}
+        self.holds = queue.Queue()
+        self.shm_before = shm_snapshot()
+        self.started = time.time()
+        self.interrupted = None
+
+    def _blame_fault(self, message, n_file, extra):
+        """A refused command-line fault is blamed on its flag, not on the config file."""
+        for i, fault in enumerate(extra):
+            tag = f"'faults[{n_file + i}]"
+            if tag in message:
+                reason = message.split(": ", 2)[-1]
+                return f"{fault.origin}: {reason}"
+        return message
+
+    def _default_timeout(self):
+        net = self.cfg["network"]
+        per_step = float(self.cfg["scenario"]["period_s"]) if self.realtime else 0.05
+        return (60.0 + 2 * float(net["start_timeout_s"]) + self.steps * per_step * 1.5
+                + len(self.faults) * (float(net["start_timeout_s"]) + 5.0))
+
+    # ------------------------------------------------------------------ processes
+    def _argv(self, exe, *extra):
+        return [paths.executable(exe), "--config", self.config_path, "--out", self.out_dir,
+                "--run", self.run_name, *extra]
+
+    def _host_of(self, name):
+        if self.hosts_count == 1:
+            return 1
+        if name == "target":
+            return 1
+        agent = int(name.split("_")[1])
+        return 2 + (agent - 1) % (self.hosts_count - 1)
+
+    def _spawn(self, proc, control=False):
+        # Dies with the launcher, whatever kills it (PR_SET_PDEATHSIG through setpriv).
+        argv = ["setpriv", "--pdeathsig", "KILL", "--", *proc.argv]
+        if self.hosts is not None:
+            argv = self.hosts.command(proc.host, argv)
+        logf = open(proc.log_path, "ab")
+        proc.popen = subprocess.Popen(
+            argv, stdout=subprocess.PIPE if control else logf, stderr=logf,
+            stdin=subprocess.PIPE if control else subprocess.DEVNULL)
+        logf.close()
+        if control:
+            threading.Thread(target=self._read_holds, args=(proc.popen,), daemon=True).start()
+
+    def _read_holds(self, popen):
+        for line in popen.stdout:
+            parts = line.decode(errors="replace").split()
+            if len(parts) >= 2 and parts[0] == "hold" and parts[1].isdigit():
+                self.holds.put(int(parts[1]))
+
+    def start(self):
+        if self.hosts_count > 1:
+            self.hosts = hosts_mod.Hosts(self.hosts_count, self.domain).create()
+            for h in range(1, self.hosts_count + 1):
+                self.hosts.set_loss(h, self.loss)
+        for j in range(1, self.n + 1):
+            name = f"agent_{j}"
+            p = Proc(name, self._argv("deif_agent", "--id", str(j)), self._host_of(name),
+                     log_path=os.path.join(self.out_dir, "logs", f"agent-{j}.log"))
+            self._spawn(p)
+            self.procs[name] = p
+        t = Proc("target", self._argv("deif_target", "--hold-for-faults"), self._host_of("target"),
+                 log_path=os.path.join(self.out_dir, "logs", "target.log"))
+        self._spawn(t, control=True)
+        self.procs["target"] = t
+
+    def current_step(self):
+        row = artefacts.last_row(os.path.join(self.out_dir, "target.csv"))
+        return int(row["step"]) if row else 0
+
+    def _say(self, msg):
+        if self.progress:
+            self.log.write("\r\033[K")
+        self.log.write(f"deif-run: {msg}\n")
+        self.log.flush()
+
+    # ------------------------------------------------------------------ faults
+    def _apply(self, fault, step):
+        fault.applied_unix_s = time.time()
+        fault.applied_at_step = step
+        if fault.action == "restart_target":
+            t = self.procs["target"]
+            if t.popen.poll() is None:
+                t.popen.send_signal(signal.SIGKILL)
+                t.popen.wait()
+            t.restarts += 1
+            t.argv = self._argv("deif_target", "--hold-for-faults", "--start-step", str(step))
+            self._spawn(t, control=True)
+            self._say(f"fault: the target killed before step {step} and restarted")
+            return
+        p = self.procs.get(f"agent_{fault.agent}")
+        if p is None or p.popen.poll() is not None:
+            return
+        if fault.action == "kill":
+            p.expected_death = True
+            p.popen.send_signal(signal.SIGKILL)
+        elif fault.action == "stop":
+            p.stopped = True
+            p.popen.send_signal(signal.SIGSTOP)
+        elif fault.action == "cont":
+            p.stopped = False
+            p.popen.send_signal(signal.SIGCONT)
+        self._say(f"fault: {fault.action} agent {fault.agent} at step {step}")
+
+    def _go(self, step):
+        t = self.procs["target"]
+        try:
+            t.popen.stdin.write(f"go {step}\n".encode())
+            t.popen.stdin.flush()
+        except (BrokenPipeError, OSError):
+            pass
+
+    def _handle_holds(self):
+        while True:
+            try:
+                step = self.holds.get_nowait()
+            except queue.Empty:
+                return
+            due = [f for f in self.faults if f.step == step and f.applied_unix_s is None]
+            restarted = False
+            for fault in due:
+                self._apply(fault, step)
+                restarted = restarted or fault.action == "restart_target"
+            if not restarted:
+                self._go(step)
+
+    def _handle_partitions(self, step):
+        now = time.time()
+        for p in self.partitions:
+            if p.cut_unix_s is None and step >= p.step:
+                self.hosts.cut(p.host)
+                p.cut_unix_s, p.cut_at_step = now, step
+                self._say(f"partition: host {p.host} cut off at step {step} for {p.seconds:g} s")
+            elif p.cut_unix_s is not None and p.healed_unix_s is None and now - p.cut_unix_s >= p.seconds:
+                self.hosts.heal(p.host)
+                p.healed_unix_s, p.healed_at_step = now, step
+                self._say(f"partition: host {p.host} back at step {step}")
+
+    # ------------------------------------------------------------------ progress
+    def _progress_line(self, step):
+        if not self.progress:
+            return
+        alive = sum(1 for n, p in self.procs.items()
+                    if n != "target" and p.popen.poll() is None and not p.stopped)
+        misses = 0
+        err = ""
+        truth = artefacts.last_row(os.path.join(self.out_dir, "target.csv"))
+        for j in range(1, self.n + 1):
+            row = artefacts.last_row(os.path.join(self.out_dir, f"agent_{j}.csv"))
+            if not row:
+                continue
+            misses += int(row.get("misses", 0))
+            if not err and truth:
+                e = math.hypot(float(row["x_est"]) - float(truth["x_true"]),
+                               float(row["y_est"]) - float(truth["y_true"]))
+                err = f"  error {e:.3f} m (agent {j})"
+        self.log.write(f"\r\033[Kstep {step}/{self.steps}  agents alive {alive}/{self.n}"
+                       f"  deadline misses {misses}{err}")
+        self.log.flush()
+
+    # ------------------------------------------------------------------ the run
+    def wait(self):
+        deadline = time.time() + self.timeout_s
+        target = self.procs["target"]
+        last_print = 0.0
+        timed_out = True
+        while time.time() < deadline:
+            self._handle_holds()
+            step = self.current_step()
+            if self.hosts is not None and self.partitions:
+                self._handle_partitions(step)
+            pending = [f for f in self.faults if f.applied_unix_s is None]
+            if target.popen.poll() is not None and self.holds.empty():
+                if target.popen.returncode != 0 or not pending or not any(
+                        f.action == "restart_target" for f in pending):
+                    timed_out = False
+                    break
+            if time.time() - last_print > 0.2:
+                self._progress_line(step)
+                last_print = time.time()
+            time.sleep(0.02)
+        if timed_out:
+            self._say(f"timeout after {self.timeout_s:.0f} s; stopping every process")
+        for p in self.partitions:  # a partition still open heals before the end
+            if p.cut_unix_s is not None and p.healed_unix_s is None:
+                self.hosts.heal(p.host)
+                p.healed_unix_s, p.healed_at_step = time.time(), self.current_step()
+        # The agents finish on their own after the last step.
+        agent_deadline = time.time() + 10.0 + float(self.cfg["network"]["step_timeout_s"])
+        for name, p in self.procs.items():
+            if p.stopped and p.popen.poll() is None:
+                p.popen.send_signal(signal.SIGCONT)
+                p.stopped = False
+            self._reap(p, max(0.1, agent_deadline - time.time()))
+        if self.progress:
+            self.log.write("\n")
+
+    def _reap(self, p, wait_s):
+        try:
+            p.popen.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            p.popen.send_signal(signal.SIGTERM)
+            try:
+                p.popen.wait(3.0)
+            except subprocess.TimeoutExpired:
+                p.popen.send_signal(signal.SIGKILL)
+                p.popen.wait()
+        p.exit_status = p.popen.returncode
+
+    def terminate_all(self):
+        for p in self.procs.values():
+            if p.popen is not None and p.popen.poll() is None:
+                if p.stopped:
+                    p.popen.send_signal(signal.SIGCONT)
+                p.popen.send_signal(signal.SIGTERM)
+        for p in self.procs.values():
+            if p.popen is not None:
+                self._reap(p, 3.0)
+
+    def finish(self):
+        if self.hosts is not None:
+            self.hosts.remove()
+        removed = shm_cleanup(self.shm_before)
+        procs = []
+        ok = self.interrupted is None
+        for name, p in self.procs.items():
+            status = p.exit_status
+            expected = status == 0 or (p.expected_death and status == -signal.SIGKILL)
+            ok = ok and expected
+            procs.append({"name": name, "argv": p.argv, "host": p.host, "exit_status": status,
+                          "signal": -status if status is not None and status < 0 else None,
+                          "expected": expected, "restarts": p.restarts,
+                          "log": os.path.relpath(p.log_path, self.out_dir)})
+        metrics = self.evaluate()
+        if metrics.get("non_finite_estimates"):
+            ok = False
+        summary = {
+            "config": self.cfg,
+            "config_file": "config.yaml",
+            "config_source": self.source_config,
+            "overrides": self.overrides,
+            "seeds": {"scenario": self.cfg["scenario"]["seed"]},
+            "run_name": self.run_name,
+            "domain_id": self.domain,
+            "hosts": self.hosts_count,
+            "loss": self.loss,
+            "partitions": [p.__dict__ for p in self.partitions],
+            "faults": [f.__dict__ for f in self.faults],
+            "processes": procs,
+            "wall_time_s": time.time() - self.started,
+            "shm_files_removed": removed,
+            "metrics": metrics,
+            "interrupted_by_signal": self.interrupted,
+            "ok": ok,
+        }
+        with open(os.path.join(self.out_dir, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=2)
+        return RunResult(self.out_dir, ok, summary)
+
+    def evaluate(self):
+        """The run's metrics, computed by deif_sim --evaluate (metrics.csv beside the run)."""
+        proc = subprocess.run([paths.executable("deif_sim"), "--config", self.config_path,
+                               "--evaluate", self.out_dir], capture_output=True, text=True)
+        if proc.returncode != 0:
+            return {"error": proc.stderr.strip()}
+        return json.loads(proc.stdout)
+
+
+def run(config_path, out_dir, **kwargs):
+    """Runs one launch to the end. SIGINT/SIGTERM stop every process, write summary.json and
+    raise Interrupted; namespaces are removed on every path."""
+    launcher = Launcher(config_path, out_dir, **kwargs)
+
+    def on_signal(signum, frame):
+        raise Interrupted(signum)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        launcher.start()
+        launcher.wait()
+    except Interrupted as e:
+        launcher.interrupted = e.signum
+        launcher._say(f"interrupted (signal {e.signum}); stopping every process")
+        launcher.terminate_all()
+        launcher.finish()
+        raise
+    except BaseException:
+        launcher.terminate_all()
+        launcher.finish()
+        raise
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return launcher.finish()
