@@ -1,4 +1,5 @@
-// YAML -> Config, one function per section (see configs/default.yaml for every key).
+// YAML -> Config through the schema (schema.cpp), the rules between keys, the command-line
+// overrides, and Config -> YAML.
 //
 // Every error is a ConfigError naming the file, the dotted key and the line, so that the
 // executables can print one clear line and stop before starting anything.
@@ -7,40 +8,30 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
+#include <initializer_list>
 #include <limits>
 #include <map>
-#include <optional>
 #include <set>
-#include <sstream>
 #include <utility>
+
+#include "common/config/document.hpp"
+#include "common/config/schema.hpp"
+#include "common/config/schema_access.hpp"
 
 namespace deif {
 
 namespace {
 
-constexpr double kTwoPi = 6.283185307179586476925286766559;
+using Kind = DocNode::Kind;
 
-// The shortest decimal text that reads back to the same double (YAML spelling of inf).
-std::string FormatDoubleShort(double value) {
-  if (std::isinf(value)) return value > 0 ? ".inf" : "-.inf";
-  if (std::isnan(value)) return ".nan";
-  char buffer[40];
-  if (value == std::floor(value) && std::abs(value) < 1e15) {
-    std::snprintf(buffer, sizeof(buffer), "%.0f", value);  // 30, not 3e+01
-    return buffer;
-  }
-  for (int precision = 1; precision <= 17; ++precision) {
-    std::snprintf(buffer, sizeof(buffer), "%.*g", precision, value);
-    if (std::strtod(buffer, nullptr) == value) break;
-  }
-  return buffer;
-}
-
+constexpr const char* kOverridePrefix = "--set ";
 
 std::string BuildMessage(const std::string& file, const std::string& key, int line,
                          const std::string& reason) {
@@ -52,605 +43,715 @@ std::string BuildMessage(const std::string& file, const std::string& key, int li
   return message;
 }
 
-// ---------------------------------------------------------------------------------------
-// Low-level readers. Each takes the node, the dotted key naming it, and the context.
-
-struct ParseContext {
-  std::string file;  // what messages call the file
-};
-
-int LineOf(const YAML::Node& node) {
-  if (!node.IsDefined()) return 0;
-  const YAML::Mark mark = node.Mark();
-  return mark.is_null() ? 0 : mark.line + 1;
+[[noreturn]] void Fail(const DocNode& node, const std::string& key, const std::string& reason) {
+  throw ConfigError(node.SourceName(), key, node.line, reason);
 }
 
-[[noreturn]] void Fail(const ParseContext& ctx, const std::string& key, const YAML::Node& node,
-                       const std::string& reason) {
-  throw ConfigError(ctx.file, key, LineOf(node), reason);
-}
-
-std::string Describe(const YAML::Node& node) {
-  switch (node.Type()) {
-    case YAML::NodeType::Null:
-      return "nothing (null)";
-    case YAML::NodeType::Sequence:
-      return "a list";
-    case YAML::NodeType::Map:
-      return "a mapping";
-    case YAML::NodeType::Scalar:
-      return node.Tag() == "!" ? "the quoted string '" + node.Scalar() + "'"
-                               : "'" + node.Scalar() + "'";
-    case YAML::NodeType::Undefined:
-      break;
-  }
-  return "nothing";
-}
-
-std::string JoinNames(const std::vector<std::string>& names) {
+std::string Join(const std::vector<std::string>& names) {
   std::string out;
-  for (const auto& name : names) {
-    if (!out.empty()) out += ", ";
-    out += name;
-  }
+  for (const std::string& name : names) out += (out.empty() ? "" : ", ") + name;
   return out;
 }
 
-// The scalar text of a plain (unquoted) scalar that should hold a number.
-const std::string& NumberText(const ParseContext& ctx, const std::string& key,
-                              const YAML::Node& node, const char* what) {
-  if (!node.IsScalar() || node.Tag() == "!") {
-    Fail(ctx, key, node, std::string("expected ") + what + " (got " + Describe(node) + ")");
-  }
-  return node.Scalar();
+std::string Where(const DocNode& node) {
+  return node.SourceName() + (node.line > 0 ? ":" + std::to_string(node.line) : "");
 }
 
-double ReadDouble(const ParseContext& ctx, const std::string& key, const YAML::Node& node,
-                  bool allow_infinity = false) {
-  const std::string& text = NumberText(ctx, key, node, "a number");
+// ---------------------------------------------------------------------------------------
+// Scalars. The text of a number is checked by hand: YAML numbers are decimal, and strtod
+// alone would also take "inf", "nan", hex floats and leading blanks.
+
+const std::string& PlainText(const DocNode& node, const std::string& key,
+                             const std::string& expected) {
+  if (node.kind != Kind::kScalar || node.quoted) {
+    Fail(node, key, "expected " + expected + " (got " + node.Describe() + ")");
+  }
+  return node.text;
+}
+
+std::string Expected(const KeySpec& spec, const char* otherwise) {
+  return spec.expected.empty() ? otherwise : spec.expected;
+}
+
+double ReadDouble(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  const std::string& text = PlainText(node, key, Expected(spec, "a number"));
+  static const std::set<std::string> kInf = {".inf", ".Inf", ".INF", "+.inf", "+.Inf", "+.INF"};
+  static const std::set<std::string> kMinusInf = {"-.inf", "-.Inf", "-.INF"};
+  static const std::set<std::string> kNan = {".nan", ".NaN", ".NAN"};
   double value = 0.0;
-  if (text == ".inf" || text == ".Inf" || text == ".INF" || text == "+.inf" ||
-      text == "+.Inf" || text == "+.INF") {
+  if (kInf.count(text) != 0) {
     value = std::numeric_limits<double>::infinity();
-  } else if (text == "-.inf" || text == "-.Inf" || text == "-.INF") {
+  } else if (kMinusInf.count(text) != 0) {
     value = -std::numeric_limits<double>::infinity();
-  } else if (text == ".nan" || text == ".NaN" || text == ".NAN") {
+  } else if (kNan.count(text) != 0) {
     value = std::numeric_limits<double>::quiet_NaN();
   } else {
-    // strtod would also take "inf", "nan" and hex floats; YAML numbers are decimal.
-    const bool decimal = !text.empty() && text.find_first_not_of("0123456789+-.eE") ==
-                                              std::string::npos;
+    const bool decimal =
+        !text.empty() && text.find_first_not_of("0123456789+-.eE") == std::string::npos &&
+        text.find_first_of("0123456789") != std::string::npos;
     char* end = nullptr;
     errno = 0;
     value = decimal ? std::strtod(text.c_str(), &end) : 0.0;
-    if (!decimal || end != text.c_str() + text.size() || errno == ERANGE) {
-      Fail(ctx, key, node, "expected a number (got " + Describe(node) + ")");
+    if (!decimal || end != text.c_str() + text.size()) {
+      Fail(node, key, "expected " + Expected(spec, "a number") + " (got " + node.Describe() + ")");
     }
+    if (errno == ERANGE) Fail(node, key, "number out of range (got " + text + ")");
   }
-  if (std::isnan(value) || (std::isinf(value) && !(allow_infinity && value > 0))) {
-    Fail(ctx, key, node,
-         std::string("must be a finite number") + (allow_infinity ? " or .inf" : "") +
+  if (std::isnan(value) || (std::isinf(value) && !(spec.allow_infinity && value > 0))) {
+    Fail(node, key,
+         std::string("must be a finite number") + (spec.allow_infinity ? " or .inf" : "") +
              " (got " + text + ")");
   }
   return value;
 }
 
-std::int64_t ReadInt64(const ParseContext& ctx, const std::string& key, const YAML::Node& node) {
-  const std::string& text = NumberText(ctx, key, node, "an integer");
-  const bool digits = !text.empty() &&
-                      text.find_first_not_of("0123456789", text[0] == '-' || text[0] == '+'
-                                                               ? 1U
-                                                               : 0U) == std::string::npos &&
-                      text.size() > (text[0] == '-' || text[0] == '+' ? 1U : 0U);
-  char* end = nullptr;
-  errno = 0;
-  const long long value = digits ? std::strtoll(text.c_str(), &end, 10) : 0;
-  if (!digits || end != text.c_str() + text.size() || errno == ERANGE) {
-    Fail(ctx, key, node, "expected an integer (got " + Describe(node) + ")");
+// Decimal digits, optionally signed, without leading zeros (YAML 1.1 reads 010 as 8).
+std::int64_t ReadInt(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  const std::string expected = Expected(spec, "an integer");
+  const std::string& text = PlainText(node, key, expected);
+  const std::size_t sign = !text.empty() && (text[0] == '-' || text[0] == '+') ? 1 : 0;
+  const bool digits = text.size() > sign &&
+                      text.find_first_not_of("0123456789", sign) == std::string::npos;
+  if (!digits) Fail(node, key, "expected " + expected + " (got " + node.Describe() + ")");
+  if (text[sign] == '0' && text.size() > sign + 1) {
+    Fail(node, key, "an integer is written without leading zeros (got " + text + ")");
   }
+  errno = 0;
+  const long long value = std::strtoll(text.c_str(), nullptr, 10);
+  if (errno == ERANGE) Fail(node, key, "integer out of range (got " + text + ")");
   return static_cast<std::int64_t>(value);
 }
 
-int ReadInt(const ParseContext& ctx, const std::string& key, const YAML::Node& node) {
-  const std::int64_t value = ReadInt64(ctx, key, node);
-  if (value < std::numeric_limits<int>::min() || value > std::numeric_limits<int>::max()) {
-    Fail(ctx, key, node, "integer out of range (got " + node.Scalar() + ")");
-  }
-  return static_cast<int>(value);
-}
-
-std::uint64_t ReadUint64(const ParseContext& ctx, const std::string& key,
-                         const YAML::Node& node) {
-  const std::string& text = NumberText(ctx, key, node, "a non-negative integer");
-  const bool digits = !text.empty() && text.find_first_not_of("0123456789") == std::string::npos;
-  char* end = nullptr;
+std::uint64_t ReadUint(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  const std::string expected = Expected(spec, "a non-negative integer below 2^64");
+  const std::string& text = PlainText(node, key, expected);
+  const bool digits = !text.empty() && text.find_first_not_of("0123456789") == std::string::npos &&
+                      (text[0] != '0' || text.size() == 1);
   errno = 0;
-  const unsigned long long value = digits ? std::strtoull(text.c_str(), &end, 10) : 0;
-  if (!digits || end != text.c_str() + text.size() || errno == ERANGE) {
-    Fail(ctx, key, node,
-         "expected a non-negative integer below 2^64 (got " + Describe(node) + ")");
+  const unsigned long long value = digits ? std::strtoull(text.c_str(), nullptr, 10) : 0;
+  if (!digits || errno == ERANGE) {
+    Fail(node, key, "expected " + expected + " (got " + node.Describe() + ")");
   }
   return static_cast<std::uint64_t>(value);
 }
 
-std::string ReadString(const ParseContext& ctx, const std::string& key, const YAML::Node& node) {
-  if (!node.IsScalar()) Fail(ctx, key, node, "expected a string (got " + Describe(node) + ")");
-  return node.Scalar();
+bool ReadBool(const DocNode& node, const std::string& key) {
+  const std::string& text = PlainText(node, key, "true or false");
+  if (text == "true" || text == "True" || text == "TRUE") return true;
+  if (text == "false" || text == "False" || text == "FALSE") return false;
+  Fail(node, key, "expected true or false (got " + node.Describe() + ")");
 }
 
-std::vector<double> ReadDoubleList(const ParseContext& ctx, const std::string& key,
-                                   const YAML::Node& node) {
-  if (!node.IsSequence()) {
-    Fail(ctx, key, node, "expected a list of numbers (got " + Describe(node) + ")");
+// The code points of valid UTF-8, or false.
+bool DecodeUtf8(const std::string& text, std::vector<std::uint32_t>* out) {
+  for (std::size_t i = 0; i < text.size();) {
+    const auto byte = static_cast<unsigned char>(text[i]);
+    std::size_t extra = 0;
+    std::uint32_t code = byte;
+    if (byte >= 0xF5 || (byte >= 0x80 && byte < 0xC2)) return false;
+    if (byte >= 0xF0) {
+      extra = 3, code = byte & 0x07u;
+    } else if (byte >= 0xE0) {
+      extra = 2, code = byte & 0x0Fu;
+    } else if (byte >= 0xC2) {
+      extra = 1, code = byte & 0x1Fu;
+    }
+    if (i + extra >= text.size()) return false;
+    for (std::size_t k = 1; k <= extra; ++k) {
+      const auto next = static_cast<unsigned char>(text[i + k]);
+      if ((next & 0xC0u) != 0x80u) return false;
+      code = (code << 6) | (next & 0x3Fu);
+    }
+    static const std::uint32_t kMin[] = {0, 0x80, 0x800, 0x10000};
+    if (code < kMin[extra] || code > 0x10FFFF || (code >= 0xD800 && code <= 0xDFFF)) {
+      return false;
+    }
+    out->push_back(code);
+    i += extra + 1;
   }
-  std::vector<double> values;
-  for (std::size_t i = 0; i < node.size(); ++i) {
-    values.push_back(ReadDouble(ctx, key + "[" + std::to_string(i) + "]", node[i]));
-  }
-  return values;
+  return true;
 }
 
-Vector2 ReadVector2(const ParseContext& ctx, const std::string& key, const YAML::Node& node) {
-  if (!node.IsSequence() || node.size() != 2) {
-    Fail(ctx, key, node,
-         "expected a list of two numbers [x, y] (got " +
-             (node.IsSequence() ? "a list of " + std::to_string(node.size())
-                                : Describe(node)) +
-             ")");
+std::string ReadString(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  if (node.kind != Kind::kScalar) {
+    Fail(node, key, "expected " + Expected(spec, "a string") + " (got " + node.Describe() + ")");
   }
-  return Vector2(ReadDouble(ctx, key + "[0]", node[0]), ReadDouble(ctx, key + "[1]", node[1]));
+  std::vector<std::uint32_t> codes;
+  if (!DecodeUtf8(node.text, &codes)) Fail(node, key, "must be valid UTF-8");
+  for (std::size_t i = 0; i < codes.size(); ++i) {
+    const std::uint32_t c = codes[i];
+    if (c < 0x20 || c == 0x7F || (c >= 0x80 && c <= 0x9F)) {
+      char hex[8];
+      std::snprintf(hex, sizeof(hex), "%04X", static_cast<unsigned>(c));
+      Fail(node, key,
+           std::string("must be printable (control character U+") + hex + " at character " +
+               std::to_string(i + 1) + ")");
+    }
+  }
+  if (spec.max_length > 0 && (codes.size() < spec.min_length || codes.size() > spec.max_length)) {
+    Fail(node, key,
+         "must be " + std::to_string(spec.min_length) + ".." + std::to_string(spec.max_length) +
+             " characters long (got " + std::to_string(codes.size()) + ")");
+  }
+  return node.text;
 }
 
-template <typename Enum>
-struct EnumName {
-  const char* name;
-  Enum value;
-};
-
-template <typename Enum, std::size_t N>
-Enum ReadEnum(const ParseContext& ctx, const std::string& key, const YAML::Node& node,
-              const EnumName<Enum> (&table)[N]) {
-  std::vector<std::string> allowed;
-  for (const auto& entry : table) allowed.emplace_back(entry.name);
-  if (!node.IsScalar()) {
-    Fail(ctx, key, node,
-         "expected one of " + JoinNames(allowed) + " (got " + Describe(node) + ")");
+std::string ReadEnum(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  if (node.kind != Kind::kScalar) {
+    Fail(node, key, "expected one of " + Join(spec.enum_names) + " (got " + node.Describe() + ")");
   }
-  for (const auto& entry : table) {
-    if (node.Scalar() == entry.name) return entry.value;
+  if (std::find(spec.enum_names.begin(), spec.enum_names.end(), node.text) ==
+      spec.enum_names.end()) {
+    Fail(node, key, "unknown value '" + node.text + "'; allowed: " + Join(spec.enum_names));
   }
-  Fail(ctx, key, node,
-       "unknown value '" + node.Scalar() + "'; allowed: " + JoinNames(allowed));
+  return node.text;
 }
 
-template <typename Enum, std::size_t N>
-const char* EnumToString(Enum value, const EnumName<Enum> (&table)[N]) {
-  for (const auto& entry : table) {
-    if (entry.value == value) return entry.name;
+// The rule a number breaks, as "must be ..." says it: "in 2..512", "> 0 and <= 86400".
+std::string RangeRule(const KeySpec& spec) {
+  const bool integral = spec.type == KeyType::kInt || spec.type == KeyType::kInt64 ||
+                        spec.type == KeyType::kIntList;
+  if (integral && spec.min && spec.max && spec.min->inclusive && spec.max->inclusive) {
+    return "in " + FormatNumber(spec.min->value) + ".." + FormatNumber(spec.max->value);
   }
-  return "?";
+  std::string rule;
+  if (spec.min) {
+    rule = std::string(spec.min->inclusive ? ">= " : "> ") + FormatNumber(spec.min->value);
+  }
+  if (spec.max) {
+    rule += std::string(rule.empty() ? "" : " and ") + (spec.max->inclusive ? "<= " : "< ") +
+            FormatNumber(spec.max->value);
+  }
+  if (spec.allow_infinity) rule += ", or .inf";
+  return rule;
 }
 
-const EnumName<StepMode> kStepModes[] = {{"lockstep", StepMode::kLockStep},
-                                         {"realtime", StepMode::kRealTime}};
-const EnumName<TrajectoryKind> kTrajectories[] = {
-    {"figure_eight", TrajectoryKind::kFigureEight},
-    {"figure_eight_shifted", TrajectoryKind::kFigureEightShifted},
-    {"circle", TrajectoryKind::kCircle},
-    {"line", TrajectoryKind::kLine},
-    {"static", TrajectoryKind::kStatic},
-    {"random_walk", TrajectoryKind::kRandomWalk}};
-const EnumName<MotionModelKind> kMotionModels[] = {
-    {"random_walk", MotionModelKind::kRandomWalk},
-    {"constant_velocity", MotionModelKind::kConstantVelocity}};
-const EnumName<ControlLawKind> kControlLaws[] = {{"midpoint", ControlLawKind::kMidpoint},
-                                                 {"voronoi", ControlLawKind::kVoronoi},
-                                                 {"stationary", ControlLawKind::kStationary}};
-const EnumName<FaultAction> kFaultActions[] = {{"kill", FaultAction::kKill},
-                                               {"stop", FaultAction::kStop},
-                                               {"cont", FaultAction::kCont},
-                                               {"restart_target", FaultAction::kRestartTarget}};
+void CheckRange(const KeySpec& spec, double value, const DocNode& node, const std::string& key) {
+  if (std::isinf(value) && spec.allow_infinity) return;
+  const bool low = spec.min && (spec.min->inclusive ? value < spec.min->value
+                                                    : value <= spec.min->value);
+  const bool high = spec.max && (spec.max->inclusive ? value > spec.max->value
+                                                     : value >= spec.max->value);
+  if (low || high) Fail(node, key, "must be " + RangeRule(spec) + " (got " + node.text + ")");
+}
+
+double ReadNumberInRange(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  const double value = ReadDouble(spec, node, key);
+  CheckRange(spec, value, node, key);
+  return value;
+}
+
+std::int64_t ReadIntInRange(const KeySpec& spec, const DocNode& node, const std::string& key) {
+  const std::int64_t value = ReadInt(spec, node, key);
+  CheckRange(spec, static_cast<double>(value), node, key);
+  // An int field without a range of its own (an agent id, checked against agents.count).
+  if ((spec.type == KeyType::kInt || spec.type == KeyType::kIntList) &&
+      (value < std::numeric_limits<int>::min() || value > std::numeric_limits<int>::max())) {
+    Fail(node, key, "integer out of range (got " + node.text + ")");
+  }
+  return value;
+}
+
+// Where each key of the document is (with list elements: "faults[0].step",
+// "agents.initial_angles_rad[2]"), for the rules between keys.
+using Locations = std::map<std::string, const DocNode*>;
+
+const DocNode& RequireList(const DocNode& node, const std::string& key, const char* expected) {
+  if (node.kind != Kind::kSequence) {
+    Fail(node, key, std::string("expected ") + expected + " (got " + node.Describe() + ")");
+  }
+  return node;
+}
+
+SchemaValue ReadValue(const KeySpec& spec, const DocNode& node, const std::string& key,
+                      Locations* at) {
+  at->emplace(key, &node);
+  const auto item_key = [&](std::size_t i) { return key + "[" + std::to_string(i) + "]"; };
+  SchemaValue value;
+  switch (spec.type) {
+    case KeyType::kDouble:
+      value = ReadNumberInRange(spec, node, key);
+      break;
+    case KeyType::kInt:
+    case KeyType::kInt64:
+      value = ReadIntInRange(spec, node, key);
+      break;
+    case KeyType::kUint64:
+      value = ReadUint(spec, node, key);
+      break;
+    case KeyType::kBool:
+      value = ReadBool(node, key);
+      break;
+    case KeyType::kString:
+      value = ReadString(spec, node, key);
+      break;
+    case KeyType::kEnum:
+      value = ReadEnum(spec, node, key);
+      break;
+    case KeyType::kVector2: {
+      if (node.kind != Kind::kSequence || node.items.size() != 2) {
+        Fail(node, key,
+             "expected a list of two numbers [x, y] (got " +
+                 (node.kind == Kind::kSequence
+                      ? "a list of " + std::to_string(node.items.size())
+                      : node.Describe()) +
+                 ")");
+      }
+      value = Vector2(ReadNumberInRange(spec, node.items[0], item_key(0)),
+                      ReadNumberInRange(spec, node.items[1], item_key(1)));
+      break;
+    }
+    case KeyType::kDoubleList: {
+      std::vector<double> values;
+      for (const DocNode& item : RequireList(node, key, "a list of numbers").items) {
+        at->emplace(item_key(values.size()), &item);
+        values.push_back(ReadNumberInRange(spec, item, item_key(values.size())));
+      }
+      value = std::move(values);
+      break;
+    }
+    case KeyType::kIntList: {
+      std::vector<std::int64_t> values;
+      for (const DocNode& item : RequireList(node, key, "a list of integers").items) {
+        at->emplace(item_key(values.size()), &item);
+        values.push_back(ReadIntInRange(spec, item, item_key(values.size())));
+      }
+      value = std::move(values);
+      break;
+    }
+    case KeyType::kRecordList:
+      break;  // ReadRecords
+  }
+  if (spec.access->check) {
+    const std::string reason = spec.access->check(value);
+    if (!reason.empty()) Fail(node, key, reason + " (got " + node.text + ")");
+  }
+  return value;
+}
+
+std::vector<std::string> Names(const std::vector<KeySpec>& keys) {
+  std::vector<std::string> names;
+  for (const KeySpec& key : keys) names.push_back(key.name);
+  return names;
+}
+
+std::vector<std::string> Names(const std::vector<const KeySpec*>& keys) {
+  std::vector<std::string> names;
+  for (const KeySpec* key : keys) names.push_back(key->name);
+  return names;
+}
+
+// A mapping whose keys must all be in `allowed`; null stands for an empty one.
+void CheckMapping(const DocNode& node, const std::string& path,
+                  const std::vector<std::string>& allowed, const std::string& expected) {
+  if (node.IsNull()) return;
+  if (!node.IsMap()) Fail(node, path, "expected " + expected + " (got " + node.Describe() + ")");
+  for (const DocEntry& entry : node.entries) {
+    if (std::find(allowed.begin(), allowed.end(), entry.key) == allowed.end()) {
+      throw ConfigError(entry.value.SourceName(), path.empty() ? entry.key : path + "." + entry.key,
+                        entry.key_line, "unknown key; allowed: " + Join(allowed));
+    }
+  }
+}
+
+void ApplyDefaults(const std::vector<KeySpec>& keys, void* record) {
+  for (const KeySpec& spec : keys) {
+    if (spec.type == KeyType::kRecordList) {
+      spec.access->clear(record);
+    } else if (spec.access->default_value) {
+      spec.access->set(record, *spec.access->default_value);
+    }
+  }
+}
+
+std::string WithArticle(const std::string& noun) {
+  return (std::string("aeiou").find(noun[0]) != std::string::npos ? "an " : "a ") + noun;
+}
+
+void ReadRecords(const KeySpec& spec, const DocNode& node, const std::string& key, void* record,
+                 Locations* at) {
+  at->emplace(key, &node);
+  spec.access->clear(record);
+  if (node.IsNull()) return;
+  const std::string shape = "{" + Join(Names(spec.fields)) + "}";
+  if (node.kind != Kind::kSequence) {
+    Fail(node, key, "expected a list of " + shape + " (got " + node.Describe() + ")");
+  }
+  for (std::size_t i = 0; i < node.items.size(); ++i) {
+    const DocNode& item = node.items[i];
+    const std::string path = key + "[" + std::to_string(i) + "]";
+    at->emplace(path, &item);
+    if (!item.IsMap()) {
+      Fail(item, path, "expected a mapping " + shape + " (got " + item.Describe() + ")");
+    }
+    CheckMapping(item, path, Names(spec.fields), "a mapping " + shape);
+    void* element = spec.access->append(record);
+    ApplyDefaults(spec.fields, element);
+    for (const KeySpec& field : spec.fields) {
+      const DocNode* value = item.Find(field.name);
+      const std::string field_key = path + "." + field.name;
+      if (value == nullptr) {
+        if (field.required) {
+          Fail(item, field_key,
+               "missing (every " + spec.element_noun + " needs " + WithArticle(field.name) + ")");
+        }
+        continue;
+      }
+      field.access->set(element, ReadValue(field, *value, field_key, at));
+    }
+  }
+}
 
 // ---------------------------------------------------------------------------------------
-// A mapping with a fixed set of allowed keys. Construction rejects anything else: a
-// non-mapping, an unknown key (naming the allowed ones) or a duplicate key.
-class Section {
- public:
-  Section(const ParseContext& ctx, const YAML::Node& node, std::string path,
-          std::vector<std::string> allowed)
-      : ctx_(ctx), node_(node), path_(std::move(path)), allowed_(std::move(allowed)) {
-    if (!node_.IsDefined() || node_.IsNull()) return;  // absent or empty: all defaults
-    if (!node_.IsMap()) {
-      Fail(ctx_, path_, node_, "expected a mapping of keys (got " + Describe(node_) + ")");
-    }
-    std::set<std::string> seen;
-    for (const auto& entry : node_) {
-      const YAML::Node& key_node = entry.first;
-      if (!key_node.IsScalar()) Fail(ctx_, path_, key_node, "keys must be plain names");
-      const std::string& name = key_node.Scalar();
-      if (std::find(allowed_.begin(), allowed_.end(), name) == allowed_.end()) {
-        Fail(ctx_, Key(name), key_node, "unknown key; allowed: " + JoinNames(allowed_));
-      }
-      if (!seen.insert(name).second) Fail(ctx_, Key(name), key_node, "duplicate key");
-    }
-  }
+// The rules between keys, after every key is read.
 
-  bool Has(const std::string& name) const {
-    return node_.IsDefined() && node_.IsMap() && node_[name].IsDefined();
+class Rules {
+ public:
+  Rules(const Config& config, const Locations& at, const std::string& source)
+      : c_(config), at_(at), source_(source) {}
+
+  void Check() {
+    Sensing();
+    Agents();
+    Network();
+    NetworkSim();
+    Faults();
   }
-  // The value of a key, or a null node when it is absent.
-  YAML::Node Get(const std::string& name) const { return Has(name) ? node_[name] : YAML::Node(); }
-  std::string Key(const std::string& name) const {
-    return path_.empty() ? name : path_ + "." + name;
-  }
-  const YAML::Node& node() const { return node_; }
 
  private:
-  const ParseContext& ctx_;
-  const YAML::Node node_;
-  std::string path_;
-  std::vector<std::string> allowed_;
+  const DocNode* At(const std::string& key) const {
+    const auto it = at_.find(key);
+    return it == at_.end() ? nullptr : it->second;
+  }
+  bool FromOverride(const DocNode* node) const {
+    return node != nullptr && node->SourceName().rfind(kOverridePrefix, 0) == 0;
+  }
+
+  // Fails at the first of `keys` set with --set, else at the first present, else (all
+  // defaults) at the first without a line.
+  [[noreturn]] void Blame(std::initializer_list<std::string> keys,
+                          const std::string& reason) const {
+    for (const std::string& key : keys) {
+      if (FromOverride(At(key))) Fail(*At(key), key, reason);
+    }
+    for (const std::string& key : keys) {
+      if (At(key) != nullptr) Fail(*At(key), key, reason);
+    }
+    throw ConfigError(source_, *keys.begin(), 0, reason);
+  }
+
+  // A value beyond a limit set by another key: blames the limit when only the limit came
+  // from --set (the file was fine until the command line changed the limit).
+  [[noreturn]] void BeyondLimit(const std::string& key, const std::string& limit_key,
+                                const std::string& reason, const std::string& limit_reason) const {
+    const DocNode* node = At(key);
+    const DocNode* limit = At(limit_key);
+    if (FromOverride(limit) && !FromOverride(node) && node != nullptr) {
+      Fail(*limit, limit_key, limit_reason + " (" + key + " at " + Where(*node) + ")");
+    }
+    Blame({key}, reason);
+  }
+
+  void Sensing() const {
+    const SensingFunction& s = c_.sensing;
+    if (!(s.r1_m > s.r0_m)) {
+      Blame({"sensing.r1_m", "sensing.r0_m"}, "r1_m must be > r0_m (got r0_m " +
+                                                   FormatNumber(s.r0_m) + ", r1_m " +
+                                                   FormatNumber(s.r1_m) + ")");
+    }
+  }
+
+  void Agents() const {
+    const auto& angles = c_.agents.initial_angles_rad;
+    if (!angles.empty() && static_cast<int>(angles.size()) != c_.agents.count) {
+      Blame({"agents.initial_angles_rad", "agents.count"},
+            "must have one angle per agent: length must equal agents.count = " +
+                std::to_string(c_.agents.count) + " (got " + std::to_string(angles.size()) + ")");
+    }
+  }
+
+  void Network() const {
+    const NetworkConfig& n = c_.network;
+    if (!(n.participant_announcement_s < n.participant_lease_s)) {
+      Blame({"network.participant_announcement_s", "network.participant_lease_s"},
+            "participant_announcement_s must be < participant_lease_s (got " +
+                FormatNumber(n.participant_announcement_s) + " >= " +
+                FormatNumber(n.participant_lease_s) + ")");
+    }
+  }
+
+  void StepWithinRun(const std::string& key, StepIndex step) const {
+    if (step > c_.scenario.steps) {
+      const std::string steps = std::to_string(c_.scenario.steps);
+      BeyondLimit(key, "scenario.steps",
+                  "must be in 1..scenario.steps = 1.." + steps + " (got " +
+                      std::to_string(step) + ")",
+                  "a step " + std::to_string(step) + " lies beyond scenario.steps = " + steps);
+    }
+  }
+
+  void AgentWithinCount(const std::string& key, AgentId id) const {
+    if (id < 1) Blame({key}, "agent id must be in 1.." + std::to_string(c_.agents.count) +
+                                 " (got " + std::to_string(id) + ")");
+    if (id > c_.agents.count) {
+      const std::string count = std::to_string(c_.agents.count);
+      BeyondLimit(key, "agents.count",
+                  "agent id must be in 1.." + count + " (got " + std::to_string(id) + ")",
+                  "agent " + std::to_string(id) + " does not exist with agents.count = " + count);
+    }
+  }
+
+  void NetworkSim() const {
+    const NetworkSimConfig& n = c_.network_sim;
+    if (n.delay_min_s > n.delay_max_s) {
+      Blame({"network_sim.delay_max_s", "network_sim.delay_min_s"},
+            "delay_min_s must be <= delay_max_s (got " + FormatNumber(n.delay_min_s) + " > " +
+                FormatNumber(n.delay_max_s) + ")");
+    }
+    for (std::size_t i = 0; i < n.partitions.size(); ++i) {
+      const PartitionConfig& p = n.partitions[i];
+      const std::string path = "network_sim.partitions[" + std::to_string(i) + "]";
+      StepWithinRun(path + ".from_step", p.from_step);
+      StepWithinRun(path + ".to_step", p.to_step);
+      if (p.to_step < p.from_step) {
+        Blame({path + ".to_step"}, "must be >= from_step = " + std::to_string(p.from_step) +
+                                       " (got " + std::to_string(p.to_step) + ")");
+      }
+      std::set<AgentId> seen;
+      for (std::size_t j = 0; j < p.group.size(); ++j) {
+        const std::string key = path + ".group[" + std::to_string(j) + "]";
+        AgentWithinCount(key, p.group[j]);
+        if (!seen.insert(p.group[j]).second) {
+          Blame({key}, "agent " + std::to_string(p.group[j]) + " appears twice in the group");
+        }
+      }
+      if (p.group.empty() && !p.with_target) {
+        Blame({path + ".group", path},
+              "must name at least one agent (or set with_target: true to cut off the target)");
+      }
+    }
+  }
+
+  // Faults are checked as a sequence in step order: nothing happens to a killed agent, cont
+  // only follows stop, and one agent at least survives.
+  void Faults() const {
+    const std::vector<FaultConfig>& faults = c_.faults;
+    for (std::size_t i = 0; i < faults.size(); ++i) {
+      const FaultConfig& f = faults[i];
+      const std::string path = "faults[" + std::to_string(i) + "]";
+      StepWithinRun(path + ".step", f.step);
+      const bool has_agent = At(path + ".agent") != nullptr;
+      if (f.action == FaultAction::kRestartTarget) {
+        if (has_agent) Blame({path + ".agent"}, "restart_target takes no agent");
+      } else if (!has_agent) {
+        Fail(*At(path), path + ".agent",
+             std::string("missing (action ") + ToString(f.action) + " needs an agent id)");
+      } else {
+        AgentWithinCount(path + ".agent", f.agent_id);
+      }
+    }
+    std::vector<std::size_t> order(faults.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+      return faults[a].step < faults[b].step;
+    });
+    enum class State { kRunning, kStopped, kKilled };
+    std::map<AgentId, State> state;
+    int killed = 0;
+    for (const std::size_t i : order) {
+      const FaultConfig& f = faults[i];
+      if (f.action == FaultAction::kRestartTarget) continue;
+      const std::string key = "faults[" + std::to_string(i) + "].action";
+      State& st = state[f.agent_id];
+      const std::string who = "agent " + std::to_string(f.agent_id);
+      if (st == State::kKilled) {
+        Blame({key}, who + " was already killed before step " + std::to_string(f.step));
+      }
+      switch (f.action) {
+        case FaultAction::kKill:
+          st = State::kKilled;
+          ++killed;
+          break;
+        case FaultAction::kStop:
+          if (st == State::kStopped) Blame({key}, who + " is already stopped");
+          st = State::kStopped;
+          break;
+        case FaultAction::kCont:
+          if (st != State::kStopped) Blame({key}, "cont needs an earlier stop of " + who);
+          st = State::kRunning;
+          break;
+        case FaultAction::kRestartTarget:
+          break;
+      }
+    }
+    if (killed >= c_.agents.count) {
+      Blame({"faults", "agents.count"}, "the faults kill every agent; at least one must survive");
+    }
+  }
+
+  const Config& c_;
+  const Locations& at_;
+  const std::string& source_;
 };
 
-// Reads an optional key into `value` (left at its default when absent) and returns whether
-// it was present.
-template <typename Reader>
-auto Optional(const Section& section, const std::string& name, Reader reader)
-    -> std::optional<decltype(reader(std::string(), YAML::Node()))> {
-  if (!section.Has(name)) return std::nullopt;
-  return reader(section.Key(name), section.Get(name));
+// ---------------------------------------------------------------------------------------
+
+std::string TopLevelNames() {
+  std::vector<std::string> names;
+  for (const SectionSpec& section : Sections()) names.push_back(section.name);
+  return Join(names);
 }
 
-// Range checks, each naming the key, the rule and the value.
-void RequirePositive(const ParseContext& ctx, const Section& s, const std::string& name,
-                     double value) {
-  if (!(value > 0.0)) {
-    Fail(ctx, s.Key(name), s.Get(name), "must be > 0 (got " + s.Get(name).Scalar() + ")");
-  }
-}
-void RequireNonNegative(const ParseContext& ctx, const Section& s, const std::string& name,
-                        double value) {
-  if (!(value >= 0.0)) {
-    Fail(ctx, s.Key(name), s.Get(name), "must be >= 0 (got " + s.Get(name).Scalar() + ")");
+void CheckTopLevel(const DocNode& root) {
+  if (!root.IsNull() && !root.IsMap()) {
+    Fail(root, "", "the top level must be a mapping of sections (" + TopLevelNames() + "; got " +
+                       root.Describe() + ")");
   }
 }
 
-// An optional key that must be > 0 (or >= 0): when present, checked and stored in field.
-template <typename Reader>
-void ReadPositive(const ParseContext& ctx, const Section& s, const std::string& name,
-                  Reader reader, double& field) {
-  if (auto v = Optional(s, name, reader)) {
-    RequirePositive(ctx, s, name, *v);
-    field = *v;
+Config ParseTree(const DocNode& root, const std::string& source_name) {
+  CheckTopLevel(root);
+  std::vector<std::string> top;
+  for (const SectionSpec& section : Sections()) top.push_back(section.name);
+  CheckMapping(root, "", top, "a mapping");
+  for (const SectionSpec& section : Sections()) {
+    const DocNode* node = root.Find(section.name);
+    if (node != nullptr && !section.is_key) {
+      CheckMapping(*node, section.name, Names(section.keys), "a mapping of keys");
+    }
   }
-}
-template <typename Reader>
-void ReadNonNegative(const ParseContext& ctx, const Section& s, const std::string& name,
-                     Reader reader, double& field) {
-  if (auto v = Optional(s, name, reader)) {
-    RequireNonNegative(ctx, s, name, *v);
-    field = *v;
+
+  Config config;
+  config.source = source_name;
+  ApplyDefaults(Schema(), &config);
+  Locations at;
+  for (const KeySpec& spec : Schema()) {
+    const DocNode* node = root.Find(spec.section.empty() ? spec.name : spec.section);
+    if (node != nullptr && !spec.section.empty()) node = node->Find(spec.name);
+    if (node == nullptr) continue;
+    if (spec.type == KeyType::kRecordList) {
+      ReadRecords(spec, *node, spec.key, &config, &at);
+    } else {
+      spec.access->set(&config, ReadValue(spec, *node, spec.key, &at));
+    }
   }
+  config.filter.motion_model.dt_s = config.scenario.dt_s;
+  Rules(config, at, source_name).Check();
+  return config;
 }
 
 // ---------------------------------------------------------------------------------------
-// One function per section.
+// Overrides.
 
-ScenarioConfig ParseScenario(const YAML::Node& node, const ParseContext& ctx) {
-  const Section s(ctx, node, "scenario", {"name", "seed", "steps", "dt_s", "mode", "period_s"});
-  ScenarioConfig out;
-  const auto num = [&](const std::string& key, const YAML::Node& n) {
-    return ReadDouble(ctx, key, n);
-  };
-  if (auto v = Optional(s, "name", [&](const std::string& key, const YAML::Node& n) {
-        return ReadString(ctx, key, n);
-      })) {
-    if (v->empty()) Fail(ctx, s.Key("name"), s.Get("name"), "must not be empty");
-    out.name = *v;
+struct Override {
+  std::string key;    // dotted
+  std::string value;  // YAML text
+};
+
+Override SplitOverride(const std::string& text) {
+  const std::size_t eq = text.find('=');
+  if (eq == std::string::npos || eq == 0) {
+    throw ConfigError(kOverridePrefix + text, "", 0,
+                      "expected dotted.key=value with a YAML value, e.g. agents.count=6");
   }
-  if (auto v = Optional(s, "seed", [&](const std::string& key, const YAML::Node& n) {
-        return ReadUint64(ctx, key, n);
-      })) {
-    out.seed = *v;
+  Override o{text.substr(0, eq), text.substr(eq + 1)};
+  bool good = o.key.front() != '.' && o.key.back() != '.' &&
+              o.key.find("..") == std::string::npos;
+  for (const char ch : o.key) {
+    good = good && (std::isalnum(static_cast<unsigned char>(ch)) != 0 || ch == '_' || ch == '.');
   }
-  if (auto v = Optional(s, "steps", [&](const std::string& key, const YAML::Node& n) {
-        return ReadInt64(ctx, key, n);
-      })) {
-    if (*v < 1) Fail(ctx, s.Key("steps"), s.Get("steps"), "must be >= 1 (got " + s.Get("steps").Scalar() + ")");
-    out.steps = *v;
+  if (!good) {
+    throw ConfigError(kOverridePrefix + o.key, "", 0,
+                      "not a dotted key (names of letters, digits and _ joined by '.')");
   }
-  ReadPositive(ctx, s, "dt_s", num, out.dt_s);
-  if (auto v = Optional(s, "mode", [&](const std::string& key, const YAML::Node& n) {
-        return ReadEnum(ctx, key, n, kStepModes);
-      })) {
-    out.mode = *v;
-  }
-  ReadPositive(ctx, s, "period_s", num, out.period_s);
-  return out;
+  return o;
 }
 
-TargetConfig ParseTarget(const YAML::Node& node, const ParseContext& ctx) {
-  const Section s(ctx, node, "target",
-                  {"trajectory", "start_m", "velocity_mps", "circle_radius_m",
-                   "angular_rate_radps", "process_noise_variance_m2", "range_noise_variance_m2"});
-  TargetConfig out;
-  TrajectoryConfig& traj = out.trajectory;
-  const auto num = [&](const std::string& key, const YAML::Node& n) {
-    return ReadDouble(ctx, key, n);
-  };
-  const auto vec = [&](const std::string& key, const YAML::Node& n) {
-    return ReadVector2(ctx, key, n);
-  };
-  if (auto v = Optional(s, "trajectory", [&](const std::string& key, const YAML::Node& n) {
-        return ReadEnum(ctx, key, n, kTrajectories);
-      })) {
-    traj.kind = *v;
+void ClearLines(DocNode* node) {
+  node->line = 0;
+  for (DocNode& item : node->items) ClearLines(&item);
+  for (DocEntry& entry : node->entries) {
+    entry.key_line = 0;
+    ClearLines(&entry.value);
   }
-  if (auto v = Optional(s, "start_m", vec)) traj.start_m = *v;
-  if (auto v = Optional(s, "velocity_mps", vec)) traj.velocity_mps = *v;
-  if (auto v = Optional(s, "circle_radius_m", num)) {
-    RequirePositive(ctx, s, "circle_radius_m", *v);
-    traj.circle_radius_m = *v;
-  }
-  if (auto v = Optional(s, "angular_rate_radps", num)) traj.angular_rate_radps = *v;
-  if (auto v = Optional(s, "process_noise_variance_m2", num)) {
-    RequireNonNegative(ctx, s, "process_noise_variance_m2", *v);
-    traj.process_noise_variance = *v;
-  }
-  ReadPositive(ctx, s, "range_noise_variance_m2", num, out.range_noise_variance_m2);
-  return out;
 }
 
-FilterConfig ParseFilter(const YAML::Node& node, const ParseContext& ctx, double dt_s) {
-  const Section s(ctx, node, "filter",
-                  {"motion_model", "process_noise", "range_variance_m2", "initial_estimate_m",
-                   "initial_position_variance_m2", "initial_velocity_variance_m2ps2"});
-  FilterConfig out;
-  out.motion_model.dt_s = dt_s;
-  const auto num = [&](const std::string& key, const YAML::Node& n) {
-    return ReadDouble(ctx, key, n);
-  };
-  if (auto v = Optional(s, "motion_model", [&](const std::string& key, const YAML::Node& n) {
-        return ReadEnum(ctx, key, n, kMotionModels);
-      })) {
-    out.motion_model.kind = *v;
+void ApplyOverride(DocNode* root, const Override& o) {
+  const std::string source = kOverridePrefix + o.key;
+  const bool one_line = o.value.find('\n') == std::string::npos;  // then no line to name
+  DocNode value;
+  try {
+    value = ReadDocument(o.value, source);
+  } catch (const ConfigError& e) {
+    if (!one_line) throw;
+    throw ConfigError(e.file(), e.key(), 0, e.reason());
   }
-  ReadPositive(ctx, s, "process_noise", num, out.motion_model.process_noise);
-  ReadPositive(ctx, s, "range_variance_m2", num, out.range_variance_m2);
-  if (auto v = Optional(s, "initial_estimate_m", [&](const std::string& key, const YAML::Node& n) {
-        return ReadVector2(ctx, key, n);
-      })) {
-    out.initial_estimate_m = *v;
-  }
-  ReadPositive(ctx, s, "initial_position_variance_m2", num, out.initial_position_variance_m2);
-  ReadPositive(ctx, s, "initial_velocity_variance_m2ps2", num, out.initial_velocity_variance_m2ps2);
-  return out;
-}
+  if (one_line) ClearLines(&value);
+  const auto made_here = std::make_shared<const std::string>(source);
 
-SensingFunction ParseSensing(const YAML::Node& node, const ParseContext& ctx) {
-  const Section s(ctx, node, "sensing", {"c0", "r0_m", "r1_m", "beta"});
-  SensingFunction out;
-  const auto num = [&](const std::string& key, const YAML::Node& n) {
-    return ReadDouble(ctx, key, n);
-  };
-  if (auto v = Optional(s, "c0", num)) out.c0 = *v;
-  ReadNonNegative(ctx, s, "r0_m", num, out.r0_m);
-  if (auto v = Optional(s, "r1_m", [&](const std::string& key, const YAML::Node& n) {
-        return ReadDouble(ctx, key, n, /*allow_infinity=*/true);
-      })) {
-    out.r1_m = *v;
+  std::vector<std::string> parts;
+  for (std::size_t start = 0;;) {
+    const std::size_t dot = o.key.find('.', start);
+    parts.push_back(o.key.substr(start, dot - start));
+    if (dot == std::string::npos) break;
+    start = dot + 1;
   }
-  if (!(out.r1_m > out.r0_m)) {
-    const std::string name = s.Has("r1_m") ? "r1_m" : "r0_m";
-    Fail(ctx, s.Key(name), s.Get(name),
-         "r1_m must be > r0_m (got r0_m " + FormatDoubleShort(out.r0_m) + ", r1_m " +
-             FormatDoubleShort(out.r1_m) + ")");
-  }
-  if (s.Has("beta")) {
-    const YAML::Node n = s.Get("beta");
-    std::int64_t beta = 0;
-    try {
-      beta = ReadInt64(ctx, s.Key("beta"), n);
-    } catch (const ConfigError&) {
-      Fail(ctx, s.Key("beta"), n,
-           "must be a positive integer or -1 (got " + Describe(n) + ")");
+  DocNode* node = root;
+  std::string path;
+  for (std::size_t i = 0; i < parts.size(); ++i) {
+    if (node->IsNull()) {
+      node->kind = Kind::kMap;
+      node->source = made_here;
+      node->line = 0;
     }
-    if (beta < 1 && beta != -1) {
-      Fail(ctx, s.Key("beta"), n, "must be a positive integer or -1 (got " + n.Scalar() + ")");
+    if (!node->IsMap()) {
+      throw ConfigError(source, o.key, 0,
+                        "cannot set it: " + path + " (" + Where(*node) + ") is " +
+                            node->Describe() + ", not a mapping");
     }
-    if (beta > 64) Fail(ctx, s.Key("beta"), n, "must be <= 64 (got " + n.Scalar() + ")");
-    out.beta = static_cast<double>(beta);
-  }
-  return out;
-}
-
-AgentsConfig ParseAgents(const YAML::Node& node, const ParseContext& ctx) {
-  const Section s(ctx, node, "agents",
-                  {"count", "initial_angles_rad", "initial_centre_m", "radius_m",
-                   "max_speed_mps", "control_law"});
-  AgentsConfig out;
-  const auto num = [&](const std::string& key, const YAML::Node& n) {
-    return ReadDouble(ctx, key, n);
-  };
-  if (auto v = Optional(s, "count", [&](const std::string& key, const YAML::Node& n) {
-        return ReadInt(ctx, key, n);
-      })) {
-    if (*v < 2) Fail(ctx, s.Key("count"), s.Get("count"), "must be >= 2 (got " + s.Get("count").Scalar() + ")");
-    out.count = *v;
-  }
-  if (auto v = Optional(s, "initial_angles_rad", [&](const std::string& key, const YAML::Node& n) {
-        return ReadDoubleList(ctx, key, n);
-      })) {
-    if (static_cast<int>(v->size()) != out.count) {
-      Fail(ctx, s.Key("initial_angles_rad"), s.Get("initial_angles_rad"),
-           "must have one angle per agent: length must equal agents.count = " +
-               std::to_string(out.count) + " (got " + std::to_string(v->size()) + ")");
+    path += (path.empty() ? "" : ".") + parts[i];
+    DocNode* child = node->Find(parts[i]);
+    if (child == nullptr) {
+      DocEntry entry;
+      entry.key = parts[i];
+      entry.value.source = made_here;
+      node->entries.push_back(std::move(entry));
+      child = &node->entries.back().value;
     }
-    out.initial_angles_rad = *v;
-  }
-  if (auto v = Optional(s, "initial_centre_m", [&](const std::string& key, const YAML::Node& n) {
-        return ReadVector2(ctx, key, n);
-      })) {
-    out.initial_centre_m = *v;
-  }
-  ReadPositive(ctx, s, "radius_m", num, out.radius_m);
-  ReadNonNegative(ctx, s, "max_speed_mps", num, out.max_speed_mps);
-  if (auto v = Optional(s, "control_law", [&](const std::string& key, const YAML::Node& n) {
-        return ReadEnum(ctx, key, n, kControlLaws);
-      })) {
-    out.control_law = *v;
-  }
-  return out;
-}
-
-NetworkConfig ParseNetwork(const YAML::Node& node, const ParseContext& ctx) {
-  const Section s(ctx, node, "network",
-                  {"domain_id", "liveliness_lease_s", "participant_lease_s",
-                   "participant_announcement_s", "step_timeout_s", "start_timeout_s",
-                   "fusion_window_steps"});
-  NetworkConfig out;
-  const auto num = [&](const std::string& key, const YAML::Node& n) {
-    return ReadDouble(ctx, key, n);
-  };
-  const auto integer = [&](const std::string& key, const YAML::Node& n) {
-    return ReadInt(ctx, key, n);
-  };
-  if (auto v = Optional(s, "domain_id", integer)) {
-    // Fast DDS calls exit() for domain ids above 232 (docs/PITFALLS).
-    if (*v < 0 || *v > 232) {
-      Fail(ctx, s.Key("domain_id"), s.Get("domain_id"),
-           "must be in 0..232 (got " + s.Get("domain_id").Scalar() + ")");
-    }
-    out.domain_id = *v;
-  }
-  ReadPositive(ctx, s, "liveliness_lease_s", num, out.liveliness_lease_s);
-  ReadPositive(ctx, s, "participant_lease_s", num, out.participant_lease_s);
-  ReadPositive(ctx, s, "participant_announcement_s", num, out.participant_announcement_s);
-  if (!(out.participant_announcement_s < out.participant_lease_s)) {
-    const std::string name =
-        s.Has("participant_announcement_s") ? "participant_announcement_s" : "participant_lease_s";
-    Fail(ctx, s.Key(name), s.Get(name),
-         "participant_announcement_s must be < participant_lease_s (got " +
-             FormatDoubleShort(out.participant_announcement_s) + " >= " +
-             FormatDoubleShort(out.participant_lease_s) + ")");
-  }
-  ReadPositive(ctx, s, "step_timeout_s", num, out.step_timeout_s);
-  ReadPositive(ctx, s, "start_timeout_s", num, out.start_timeout_s);
-  if (auto v = Optional(s, "fusion_window_steps", integer)) {
-    if (*v < 0) {
-      Fail(ctx, s.Key("fusion_window_steps"), s.Get("fusion_window_steps"),
-           "must be >= 0 (got " + s.Get("fusion_window_steps").Scalar() + ")");
-    }
-    out.fusion_window_steps = *v;
-  }
-  return out;
-}
-
-// Faults need the number of steps and agents to check their step and agent id, and are
-// checked as a sequence: nothing happens to a killed agent, cont only follows stop.
-std::vector<FaultConfig> ParseFaults(const YAML::Node& node, const ParseContext& ctx,
-                                     const ScenarioConfig& scenario, const AgentsConfig& agents) {
-  std::vector<FaultConfig> out;
-  if (!node.IsDefined() || node.IsNull()) return out;
-  if (!node.IsSequence()) {
-    Fail(ctx, "faults", node,
-         "expected a list of {step, action, agent} (got " + Describe(node) + ")");
-  }
-  std::vector<YAML::Node> nodes;
-  for (std::size_t i = 0; i < node.size(); ++i) {
-    const std::string path = "faults[" + std::to_string(i) + "]";
-    const YAML::Node entry = node[i];
-    if (!entry.IsMap()) {
-      Fail(ctx, path, entry, "expected a mapping {step, action, agent} (got " + Describe(entry) + ")");
-    }
-    const Section s(ctx, entry, path, {"step", "action", "agent"});
-    FaultConfig fault;
-    if (!s.Has("step")) Fail(ctx, s.Key("step"), entry, "missing (every fault needs a step)");
-    if (!s.Has("action")) Fail(ctx, s.Key("action"), entry, "missing (every fault needs an action)");
-    fault.step = ReadInt64(ctx, s.Key("step"), s.Get("step"));
-    if (fault.step < 1 || fault.step > scenario.steps) {
-      Fail(ctx, s.Key("step"), s.Get("step"),
-           "must be in 1..scenario.steps = 1.." + std::to_string(scenario.steps) + " (got " +
-               s.Get("step").Scalar() + ")");
-    }
-    fault.action = ReadEnum(ctx, s.Key("action"), s.Get("action"), kFaultActions);
-    if (fault.action == FaultAction::kRestartTarget) {
-      if (s.Has("agent")) {
-        Fail(ctx, s.Key("agent"), s.Get("agent"), "restart_target takes no agent");
+    if (i + 1 == parts.size()) {
+      for (DocEntry& entry : node->entries) {
+        if (&entry.value == child) entry.key_line = 0;  // the key is the override's now
       }
-    } else {
-      if (!s.Has("agent")) {
-        Fail(ctx, s.Key("agent"), entry,
-             std::string("missing (action ") + EnumToString(fault.action, kFaultActions) +
-                 " needs an agent id)");
-      }
-      fault.agent_id = ReadInt(ctx, s.Key("agent"), s.Get("agent"));
-      if (fault.agent_id < 1 || fault.agent_id > agents.count) {
-        Fail(ctx, s.Key("agent"), s.Get("agent"),
-             "agent id must be in 1.." + std::to_string(agents.count) + " (got " +
-                 s.Get("agent").Scalar() + ")");
-      }
+      *child = std::move(value);
+      return;
     }
-    out.push_back(fault);
-    nodes.push_back(entry);
+    node = child;
   }
-
-  // The faults as a sequence in step order (file order within a step).
-  std::vector<std::size_t> order(out.size());
-  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
-  std::stable_sort(order.begin(), order.end(),
-                   [&](std::size_t a, std::size_t b) { return out[a].step < out[b].step; });
-  enum class State { kRunning, kStopped, kKilled };
-  std::map<AgentId, State> state;
-  int killed = 0;
-  for (const std::size_t i : order) {
-    const FaultConfig& f = out[i];
-    if (f.action == FaultAction::kRestartTarget) continue;
-    const std::string key = "faults[" + std::to_string(i) + "].action";
-    State& st = state[f.agent_id];
-    const std::string who = "agent " + std::to_string(f.agent_id);
-    if (st == State::kKilled) {
-      Fail(ctx, key, nodes[i]["action"], who + " was already killed before step " + std::to_string(f.step));
-    }
-    switch (f.action) {
-      case FaultAction::kKill:
-        st = State::kKilled;
-        ++killed;
-        break;
-      case FaultAction::kStop:
-        if (st == State::kStopped) Fail(ctx, key, nodes[i]["action"], who + " is already stopped");
-        st = State::kStopped;
-        break;
-      case FaultAction::kCont:
-        if (st != State::kStopped) {
-          Fail(ctx, key, nodes[i]["action"], "cont needs an earlier stop of " + who);
-        }
-        st = State::kRunning;
-        break;
-      case FaultAction::kRestartTarget:
-        break;
-    }
-  }
-  if (killed >= agents.count) {
-    Fail(ctx, "faults", node, "the faults kill every agent; at least one must survive");
-  }
-  return out;
 }
 
-Config ParseRoot(const YAML::Node& root, const std::string& source_name) {
-  const ParseContext ctx{source_name};
-  const Section top(ctx, root, "",
-                    {"scenario", "target", "filter", "sensing", "agents", "network", "faults"});
-  Config config;
-  config.source = source_name;
-  config.scenario = ParseScenario(top.Get("scenario"), ctx);
-  config.target = ParseTarget(top.Get("target"), ctx);
-  config.filter = ParseFilter(top.Get("filter"), ctx, config.scenario.dt_s);
-  config.sensing = ParseSensing(top.Get("sensing"), ctx);
-  config.agents = ParseAgents(top.Get("agents"), ctx);
-  config.network = ParseNetwork(top.Get("network"), ctx);
-  config.faults = ParseFaults(top.Get("faults"), ctx, config.scenario, config.agents);
-  return config;
+// agents.count changed on the command line without new angles: a file's angle list of
+// another length would be refused, so the agents start evenly spaced instead.
+void DropStaleAngles(DocNode* root, const std::vector<Override>& overrides) {
+  bool count_set = false;
+  for (const Override& o : overrides) {
+    if (o.key == "agents.count") count_set = true;
+    if (o.key == "agents.initial_angles_rad" || o.key == "agents") return;
+  }
+  DocNode* agents = count_set ? root->Find("agents") : nullptr;
+  if (agents == nullptr || !agents->IsMap()) return;
+  const DocNode* count = agents->Find("count");
+  const DocNode* angles = agents->Find("initial_angles_rad");
+  if (count == nullptr || angles == nullptr || angles->kind != Kind::kSequence ||
+      count->kind != Kind::kScalar || count->quoted ||
+      count->text.find_first_not_of("0123456789") != std::string::npos || count->text.empty() ||
+      count->text.size() > 6) {
+    return;
+  }
+  if (angles->items.size() == static_cast<std::size_t>(std::stoi(count->text))) return;
+  auto& entries = agents->entries;
+  entries.erase(std::remove_if(entries.begin(), entries.end(),
+                               [](const DocEntry& e) { return e.key == "initial_angles_rad"; }),
+                entries.end());
 }
 
 }  // namespace
@@ -661,151 +762,64 @@ ConfigError::ConfigError(std::string file, std::string key, int line, const std:
     : std::runtime_error(BuildMessage(file, key, line, reason)),
       file_(std::move(file)),
       key_(std::move(key)),
-      line_(line) {}
+      line_(line),
+      reason_(reason) {}
 
-Config ParseConfig(const std::string& yaml_text, const std::string& source_name) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::ParserException& e) {
-    throw ConfigError(source_name, "", e.mark.is_null() ? 0 : e.mark.line + 1,
-                      "YAML syntax error: " + e.msg);
+Config ParseConfig(const std::string& yaml_text, const std::string& source_name,
+                   const std::vector<std::string>& overrides) {
+  DocNode root = ReadDocument(yaml_text, source_name);
+  if (!overrides.empty()) {
+    CheckTopLevel(root);
+    std::vector<Override> parsed;
+    for (const std::string& text : overrides) parsed.push_back(SplitOverride(text));
+    for (const Override& o : parsed) ApplyOverride(&root, o);
+    DropStaleAngles(&root, parsed);
   }
-  return ParseRoot(root, source_name);
+  return ParseTree(root, source_name);
 }
 
-Config LoadConfig(const std::string& path) {
+Config LoadConfig(const std::string& path, const std::vector<std::string>& overrides) {
+  namespace fs = std::filesystem;
+  std::error_code error;
+  if (fs::is_directory(path, error)) {
+    throw ConfigError(path, "", 0, "is a directory, not a config file");
+  }
   std::ifstream in(path, std::ios::binary);
   if (!in) throw ConfigError(path, "", 0, "cannot open the config file");
-  std::ostringstream text;
-  text << in.rdbuf();
+  std::string text(kMaxConfigBytes + 1, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(text.size()));
   if (in.bad()) throw ConfigError(path, "", 0, "cannot read the config file");
-  return ParseConfig(text.str(), path);
-}
-
-namespace {
-
-std::string YamlVector(const Vector2& v) {
-  return "[" + FormatDoubleShort(v.x()) + ", " + FormatDoubleShort(v.y()) + "]";
-}
-
-std::string YamlQuoted(const std::string& text) {
-  std::string out = "\"";
-  for (const char c : text) {
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (static_cast<unsigned char>(c) < 0x20) {
-      char buffer[8];
-      std::snprintf(buffer, sizeof(buffer), "\\x%02x", static_cast<unsigned>(static_cast<unsigned char>(c)));
-      out += buffer;
-    } else {
-      out += c;
-    }
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  if (text.size() > kMaxConfigBytes) {
+    const std::uintmax_t size = fs::file_size(path, error);
+    throw ConfigError(path, "", 0,
+                      "too large: " +
+                          (error ? "more than " + std::to_string(kMaxConfigBytes)
+                                 : std::to_string(size)) +
+                          " bytes (a config is at most " + std::to_string(kMaxConfigBytes) +
+                          " bytes)");
   }
-  return out + "\"";
+  return ParseConfig(text, path, overrides);
 }
-
-}  // namespace
 
 std::string ToYaml(const Config& config) {
-  std::ostringstream y;
-  const auto d = [](double v) { return FormatDoubleShort(v); };
-  y << "scenario:\n"
-    << "  name: " << YamlQuoted(config.scenario.name) << "\n"
-    << "  seed: " << config.scenario.seed << "\n"
-    << "  steps: " << config.scenario.steps << "\n"
-    << "  dt_s: " << d(config.scenario.dt_s) << "\n"
-    << "  mode: " << ToString(config.scenario.mode) << "\n"
-    << "  period_s: " << d(config.scenario.period_s) << "\n";
-  const TrajectoryConfig& traj = config.target.trajectory;
-  y << "target:\n"
-    << "  trajectory: " << ToString(traj.kind) << "\n"
-    << "  start_m: " << YamlVector(traj.start_m) << "\n"
-    << "  velocity_mps: " << YamlVector(traj.velocity_mps) << "\n"
-    << "  circle_radius_m: " << d(traj.circle_radius_m) << "\n"
-    << "  angular_rate_radps: " << d(traj.angular_rate_radps) << "\n"
-    << "  process_noise_variance_m2: " << d(traj.process_noise_variance) << "\n"
-    << "  range_noise_variance_m2: " << d(config.target.range_noise_variance_m2) << "\n";
-  y << "filter:\n"
-    << "  motion_model: " << ToString(config.filter.motion_model.kind) << "\n"
-    << "  process_noise: " << d(config.filter.motion_model.process_noise) << "\n"
-    << "  range_variance_m2: " << d(config.filter.range_variance_m2) << "\n"
-    << "  initial_estimate_m: " << YamlVector(config.filter.initial_estimate_m) << "\n"
-    << "  initial_position_variance_m2: " << d(config.filter.initial_position_variance_m2)
-    << "\n"
-    << "  initial_velocity_variance_m2ps2: "
-    << d(config.filter.initial_velocity_variance_m2ps2) << "\n";
-  y << "sensing:\n"
-    << "  c0: " << d(config.sensing.c0) << "\n"
-    << "  r0_m: " << d(config.sensing.r0_m) << "\n"
-    << "  r1_m: " << d(config.sensing.r1_m) << "\n"
-    << "  beta: " << static_cast<long long>(config.sensing.beta) << "\n";
-  y << "agents:\n" << "  count: " << config.agents.count << "\n";
-  if (!config.agents.initial_angles_rad.empty()) {
-    y << "  initial_angles_rad: [";
-    for (std::size_t i = 0; i < config.agents.initial_angles_rad.size(); ++i) {
-      y << (i ? ", " : "") << d(config.agents.initial_angles_rad[i]);
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  for (const SectionSpec& section : Sections()) {
+    out << YAML::Key << section.name << YAML::Value;
+    if (section.is_key) {
+      EmitKeyValue(out, *section.keys.front(), &config, /*flow=*/false);
+      continue;
     }
-    y << "]\n";
-  }
-  y << "  initial_centre_m: " << YamlVector(config.agents.initial_centre_m) << "\n"
-    << "  radius_m: " << d(config.agents.radius_m) << "\n"
-    << "  max_speed_mps: " << d(config.agents.max_speed_mps) << "\n"
-    << "  control_law: " << ToString(config.agents.control_law) << "\n";
-  const NetworkConfig& net = config.network;
-  y << "network:\n"
-    << "  domain_id: " << net.domain_id << "\n"
-    << "  liveliness_lease_s: " << d(net.liveliness_lease_s) << "\n"
-    << "  participant_lease_s: " << d(net.participant_lease_s) << "\n"
-    << "  participant_announcement_s: " << d(net.participant_announcement_s) << "\n"
-    << "  step_timeout_s: " << d(net.step_timeout_s) << "\n"
-    << "  start_timeout_s: " << d(net.start_timeout_s) << "\n"
-    << "  fusion_window_steps: " << net.fusion_window_steps << "\n";
-  if (config.faults.empty()) {
-    y << "faults: []\n";
-  } else {
-    y << "faults:\n";
-    for (const FaultConfig& f : config.faults) {
-      y << "  - {step: " << f.step << ", action: " << ToString(f.action);
-      if (f.action != FaultAction::kRestartTarget) y << ", agent: " << f.agent_id;
-      y << "}\n";
+    out << YAML::BeginMap;
+    for (const KeySpec* spec : section.keys) {
+      out << YAML::Key << spec->name << YAML::Value;
+      EmitKeyValue(out, *spec, &config, /*flow=*/false);
     }
+    out << YAML::EndMap;
   }
-  return y.str();
-}
-
-const char* ToString(ControlLawKind law) { return EnumToString(law, kControlLaws); }
-const char* ToString(MotionModelKind kind) { return EnumToString(kind, kMotionModels); }
-const char* ToString(TrajectoryKind kind) { return EnumToString(kind, kTrajectories); }
-const char* ToString(StepMode mode) { return EnumToString(mode, kStepModes); }
-const char* ToString(FaultAction action) { return EnumToString(action, kFaultActions); }
-
-double InitialAngle(const Config& config, AgentId id) {
-  if (id < 1 || id > config.agents.count) {
-    throw std::out_of_range("InitialAngle: agent id " + std::to_string(id) + " not in 1.." +
-                            std::to_string(config.agents.count));
-  }
-  const auto index = static_cast<std::size_t>(id - 1);
-  if (!config.agents.initial_angles_rad.empty()) return config.agents.initial_angles_rad[index];
-  return kTwoPi / static_cast<double>(config.agents.count) * static_cast<double>(id - 1);
-}
-
-StateVector InitialState(const Config& config) {
-  StateVector x0 = StateVector::Zero(config.filter.motion_model.StateDim());
-  x0.head<2>() = config.filter.initial_estimate_m;  // velocity (if any) starts at 0
-  return x0;
-}
-
-StateMatrix InitialCovariance(const Config& config) {
-  const int n = config.filter.motion_model.StateDim();
-  StateMatrix P0 = StateMatrix::Zero(n, n);
-  P0.topLeftCorner<2, 2>() = config.filter.initial_position_variance_m2 * Matrix2::Identity();
-  if (n == 4) {
-    P0.bottomRightCorner<2, 2>() =
-        config.filter.initial_velocity_variance_m2ps2 * Matrix2::Identity();
-  }
-  return P0;
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
 }
 
 }  // namespace deif

@@ -1,5 +1,7 @@
 // Config parsing: defaults, every shipped scenario, the round trip through ToYaml, and a
 // table of bad inputs that must each be rejected with a message naming key, line and rule.
+// (The bounds, the document-level errors, overrides, the schema and the corpus of
+// malformed files have their own files here.)
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -9,6 +11,7 @@
 #include <vector>
 
 #include "common/config/config.hpp"
+#include "config_test_support.hpp"
 
 using deif::Config;
 using deif::ConfigError;
@@ -16,7 +19,7 @@ using deif::ParseConfig;
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using deif::kPi;
 
 struct BadConfig {
   const char* what;    // the behaviour, also the section name
@@ -120,15 +123,17 @@ TEST_CASE("Every bad config is rejected with a message naming key, line and rule
       {"scalar where a section is expected", "network: 5\n", "network", "expected a mapping",
        1},
       {"range variance zero", "filter:\n  range_variance_m2: 0\n", "filter.range_variance_m2",
-       "must be > 0 (got 0)", 2},
+       "must be > 0 and <= 1000000 (got 0)", 2},
       {"process noise negative", "filter:\n  process_noise: -1e-4\n", "filter.process_noise",
        "must be > 0", 2},
       {"true range noise zero", "target:\n  range_noise_variance_m2: 0.0\n",
        "target.range_noise_variance_m2", "must be > 0", 2},
-      {"one agent", "agents:\n  count: 1\n", "agents.count", "must be >= 2 (got 1)", 2},
+      {"one agent", "agents:\n  count: 1\n", "agents.count", "must be in 2..512 (got 1)", 2},
       {"dt zero", "scenario:\n  dt_s: 0\n", "scenario.dt_s", "must be > 0", 2},
-      {"dt negative", "scenario:\n  dt_s: -0.1\n", "scenario.dt_s", "must be > 0 (got -0.1)", 2},
-      {"zero steps", "scenario:\n  steps: 0\n", "scenario.steps", "must be >= 1", 2},
+      {"dt negative", "scenario:\n  dt_s: -0.1\n", "scenario.dt_s",
+       "must be > 0 and <= 86400 (got -0.1)", 2},
+      {"zero steps", "scenario:\n  steps: 0\n", "scenario.steps", "must be in 1..10000000 (got 0)",
+       2},
       {"non-finite number", "scenario:\n  dt_s: .nan\n", "scenario.dt_s", "finite", 2},
       {"infinite radius", "agents:\n  radius_m: .inf\n", "agents.radius_m", "finite", 2},
       {"angle list shorter than count", "agents:\n  count: 3\n  initial_angles_rad: [0, 1]\n",
@@ -207,7 +212,8 @@ TEST_CASE("A config error reads file:line: key 'dotted.key': reason", "[config]"
     ParseConfig("scenario:\n  steps: 5\nagents:\n  count: 1\n", "configs/x.yaml");
     FAIL("a single agent was accepted");
   } catch (const ConfigError& e) {
-    CHECK(std::string(e.what()) == "configs/x.yaml:4: key 'agents.count': must be >= 2 (got 1)");
+    CHECK(std::string(e.what()) ==
+          "configs/x.yaml:4: key 'agents.count': must be in 2..512 (got 1)");
   }
 }
 
@@ -286,6 +292,25 @@ TEST_CASE("ToYaml writes a config that parses back to the same values", "[config
       "  step_timeout_s: 3\n"
       "  start_timeout_s: 9\n"
       "  fusion_window_steps: 4\n"
+      "  liveliness_assertions_per_lease: 3\n"
+      "  history_steps: 20\n"
+      "  heartbeat_period_s: 0.05\n"
+      "  nack_response_delay_s: 0.002\n"
+      "  heartbeat_response_delay_s: 0.003\n"
+      "  deadline_fraction: 0.75\n"
+      "  transport: shm\n"
+      "  discovery: server\n"
+      "  discovery_server: \"192.168.1.5:11900\"\n"
+      "  ros2_naming: true\n"
+      "network_sim:\n"
+      "  loss: 0.2\n"
+      "  delay_min_s: 0.01\n"
+      "  delay_max_s: 0.03\n"
+      "  duplicate: 0.1\n"
+      "  reorder: 0.05\n"
+      "  partitions:\n"
+      "    - {from_step: 10, to_step: 20, group: [1, 2]}\n"
+      "    - {from_step: 30, to_step: 30, group: [], with_target: true}\n"
       "faults:\n"
       "  - {step: 5, action: stop, agent: 3}\n"
       "  - {step: 6, action: cont, agent: 3}\n"
@@ -331,6 +356,29 @@ TEST_CASE("ToYaml writes a config that parses back to the same values", "[config
   CHECK(b.network.step_timeout_s == 3.0);
   CHECK(b.network.start_timeout_s == 9.0);
   CHECK(b.network.fusion_window_steps == 4);
+  CHECK(b.network.liveliness_assertions_per_lease == 3);
+  CHECK(b.network.history_steps == 20);
+  CHECK(b.network.heartbeat_period_s == 0.05);
+  CHECK(b.network.nack_response_delay_s == 0.002);
+  CHECK(b.network.heartbeat_response_delay_s == 0.003);
+  CHECK(b.network.deadline_fraction == 0.75);
+  CHECK(b.network.transport == deif::TransportKind::kShm);
+  CHECK(b.network.discovery == deif::DiscoveryKind::kServer);
+  CHECK(b.network.discovery_server == "192.168.1.5:11900");
+  CHECK(b.network.ros2_naming);
+  CHECK(b.network_sim.loss == 0.2);
+  CHECK(b.network_sim.delay_min_s == 0.01);
+  CHECK(b.network_sim.delay_max_s == 0.03);
+  CHECK(b.network_sim.duplicate == 0.1);
+  CHECK(b.network_sim.reorder == 0.05);
+  REQUIRE(b.network_sim.partitions.size() == 2);
+  CHECK(b.network_sim.partitions[0].from_step == 10);
+  CHECK(b.network_sim.partitions[0].to_step == 20);
+  CHECK(b.network_sim.partitions[0].group == std::vector<deif::AgentId>{1, 2});
+  CHECK_FALSE(b.network_sim.partitions[0].with_target);
+  CHECK(b.network_sim.partitions[1].group.empty());
+  CHECK(b.network_sim.partitions[1].with_target);
+  CHECK(deif_test::Fingerprint(b) == deif_test::Fingerprint(a));
   REQUIRE(b.faults.size() == 4);
   CHECK(b.faults[0].action == deif::FaultAction::kStop);
   CHECK(b.faults[0].agent_id == 3);
