@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <type_traits>
+
+#include <nlohmann/json.hpp>
 
 namespace deif::agent {
 
@@ -102,6 +105,7 @@ int AgentNode::Run() {
   }
   if (stop_requested_) {
     context_.log->info("stopped after step {}", protocol_.last_written_step());
+    WriteCounters();
     return protocol::kExitOk;
   }
   // Let reliable peers receive our last samples before the writers go away (bounded: a
@@ -113,7 +117,20 @@ int AgentNode::Run() {
                      c.rejected, c.dropped, c.late, c.deadline_misses, c.adoptions, c.merges,
                      acknowledged ? "" : "not all ");
   for (const auto& [reason, count] : c.by_reason) context_.log->info("  {}: {}", reason, count);
+  WriteCounters();
   return exit_code_.value_or(protocol::kExitOk);
+}
+
+void AgentNode::WriteCounters() const {
+  if (context_.options.out_dir.empty()) return;
+  const auto& c = protocol_.counters();
+  const nlohmann::json counters = {{"rejected", c.rejected},   {"dropped", c.dropped},
+                                   {"late", c.late},           {"deadline_misses", c.deadline_misses},
+                                   {"adoptions", c.adoptions}, {"merges", c.merges},
+                                   {"by_reason", c.by_reason}};
+  std::ofstream((std::filesystem::path(context_.options.out_dir) /
+                 ("agent_" + std::to_string(id_) + ".counters.json")).string())
+      << counters.dump(2) << "\n";
 }
 
 void AgentNode::Dispatch(const dds::Event& event, double now_s) {

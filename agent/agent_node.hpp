@@ -27,6 +27,8 @@ class AgentNode : public dds::Application {
   bool AnotherProcessHasThisId();
   void Dispatch(const dds::Event& event, double now_s);
   void Execute(std::vector<protocol::AgentAction> actions);
+  // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
+  void WriteCounters() const;
 
   dds::ProcessContext& context_;
   const Config& config_;

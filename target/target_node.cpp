@@ -4,9 +4,12 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <string>
 #include <type_traits>
+
+#include <nlohmann/json.hpp>
 
 namespace deif::target {
 
@@ -131,6 +134,13 @@ int TargetNode::Run() {
                      protocol_.current_step(), elapsed_s);
   for (const auto& [reason, count] : protocol_.rejected_by_reason()) {
     context_.log->info("  {}: {}", reason, count);
+  }
+  if (!context_.options.out_dir.empty()) {
+    std::int64_t rejected = 0;
+    for (const auto& [reason, count] : protocol_.rejected_by_reason()) rejected += count;
+    const nlohmann::json counters = {{"rejected", rejected}, {"by_reason", protocol_.rejected_by_reason()}};
+    std::ofstream((std::filesystem::path(context_.options.out_dir) / "target.counters.json").string())
+        << counters.dump(2) << "\n";
   }
   if (!stop_requested_) node_.WaitForAcknowledgments(1.0);  // the last ranges reach the agents
   return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);

@@ -85,10 +85,10 @@ struct NetworkConfig {
   double start_timeout_s = 30.0;     // longest wait for the target (start, or silent mid-run)
   int fusion_window_steps = 2;       // contributions this many steps ahead are still held
   int history_steps = 50;            // steps kept for late fusion (and DDS history depth)
-  double heartbeat_period_s = 0.02;  // reliable writers' heartbeat period [s]
+  double heartbeat_period_s = 0.005;  // reliable writers' heartbeat period [s]
   double nack_response_delay_s = 0.001;       // reliable writers [s]
   double heartbeat_response_delay_s = 0.001;  // reliable readers [s]
-  double deadline_fraction = 0.5;    // real time: fuse by this fraction of the period
+  double deadline_fraction = 0.8;    // real time: fuse by this fraction of the period
   TransportKind transport = TransportKind::kUdp;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
   std::string discovery_server = "127.0.0.1:11811";  // host:port, with discovery: server

@@ -34,7 +34,7 @@ std::vector<std::string> ReadLines(const fs::path& path) {
 
 }  // namespace
 
-TEST_CASE("CSV headers are exactly those of DESIGN.md (agent csv with a trailing dropped)",
+TEST_CASE("CSV headers are the documented ones (the agent csv's extras after its 13 columns)",
           "[artefacts]") {
   const fs::path dir = FreshDir("headers");
   {
@@ -47,7 +47,7 @@ TEST_CASE("CSV headers are exactly those of DESIGN.md (agent csv with a trailing
         std::vector<std::string>{"step,agent_id,range,variance,sensor_x,sensor_y"});
   CHECK(ReadLines(dir / "agent_1.csv") ==
         std::vector<std::string>{"step,t,x_est,y_est,p_xx,p_xy,p_yy,pos_x,pos_y,angle,alive,"
-                                 "fused,rejected,dropped"});
+                                 "fused,rejected,dropped,late,misses,complete"});
   fs::remove_all(dir);
 }
 
@@ -84,10 +84,57 @@ TEST_CASE("Rows list the fields in header order", "[artefacts]") {
     row.fused = 3;
     row.rejected = 7;
     row.dropped = 9;
+    row.late = 5;
+    row.deadline_misses = 2;
+    row.complete = true;
     agent.Write(row);
   }
   CHECK(ReadLines(dir / "ranges.csv").at(1) == "3,2,1.25,0.5,-1,2");
-  CHECK(ReadLines(dir / "agent_2.csv").at(1) == "3,0.75,0.25,-0.5,1,0.125,2,3,4,-1.5,4,3,7,9");
+  CHECK(ReadLines(dir / "agent_2.csv").at(1) ==
+        "3,0.75,0.25,-0.5,1,0.125,2,3,4,-1.5,4,3,7,9,5,2,1");
+  fs::remove_all(dir);
+}
+
+TEST_CASE("Append mode keeps the rows a killed process wrote and adds no second header",
+          "[artefacts]") {
+  const fs::path dir = FreshDir("append");
+  {
+    deif::TargetCsv first((dir / "target.csv").string());
+    first.Write({1, 0.1, deif::Vector2(1.0, 2.0)});
+  }
+  {
+    deif::TargetCsv restarted((dir / "target.csv").string(), deif::CsvMode::kAppend);
+    restarted.Write({2, 0.2, deif::Vector2(3.0, 4.0)});
+  }
+  CHECK(ReadLines(dir / "target.csv") ==
+        std::vector<std::string>{"step,t,x_true,y_true", "1,0.10000000000000001,1,2",
+                                 "2,0.20000000000000001,3,4"});
+  fs::remove_all(dir);
+}
+
+TEST_CASE("The readers return what the writers wrote and skip a torn final row", "[artefacts]") {
+  const fs::path dir = FreshDir("read");
+  {
+    deif::AgentCsv agent((dir / "agent_1.csv").string());
+    deif::AgentRow row;
+    row.step = 4;
+    row.estimate_m = deif::Vector2(0.1, -0.2);
+    row.covariance << 1.0, 0.5, 0.5, 3.0;
+    row.late = 6;
+    row.complete = true;
+    agent.Write(row);
+  }
+  std::ofstream(dir / "agent_1.csv", std::ios::app) << "5,0.5,0.1";  // a kill -9 mid-row
+  const std::vector<deif::AgentRow> rows = deif::ReadAgentCsv((dir / "agent_1.csv").string());
+  REQUIRE(rows.size() == 1);
+  CHECK(rows[0].step == 4);
+  CHECK(rows[0].estimate_m == deif::Vector2(0.1, -0.2));
+  CHECK(rows[0].covariance(1, 0) == 0.5);
+  CHECK(rows[0].late == 6);
+  CHECK(rows[0].complete);
+  CHECK(deif::ReadTargetCsv((dir / "missing.csv").string()).empty());
+  std::ofstream(dir / "bad.csv") << "step,t,x_true,y_true\n1,x,2,3\n";
+  CHECK_THROWS_WITH(deif::ReadTargetCsv((dir / "bad.csv").string()), Catch::Contains("bad.csv:2"));
   fs::remove_all(dir);
 }
 

@@ -1,0 +1,173 @@
+// A hostile (or stray) participant for the multi-process tests: it joins a running
+// network's DDS domain and sends what a misbehaving peer could (docs/ARCHITECTURE.md, "Peer
+// data is untrusted"). Every test using it checks that the run completes unharmed and that
+// each bad message was counted.
+//
+//   deif_hostile --config RUN/config.yaml --run NAME --attack KIND --follow RUN [--seconds S]
+//
+// KIND:
+//   contributions  NaN, infinite, asymmetric, indefinite, huge, bad-basis, far-future,
+//                  stale, unknown-id, impersonating and duplicate contributions, aimed at the
+//                  step after the one the target last published (inside the fusion window)
+//   truth          an end-of-run marker (step -1) and a step of 1e12 on deif/truth
+//   ranges         ranges with variance 0, a 50 m range and a step of 1e12, for every agent
+//   states         agent states for an id outside 1..count, and NaN positions
+//   flood          contributions with unknown ids, as fast as it can, for --seconds
+// It prints "sent <n> <kind>" when done. --run "" joins no run partition (a stray process).
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <string>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+
+#include "common/config/config.hpp"
+#include "dds/node.hpp"
+
+namespace {
+
+using deif::protocol::ContributionMsg;
+
+// The step of the last complete row of target.csv (0 when there is none).
+long long CurrentStep(const std::string& run_dir) {
+  std::ifstream in(run_dir + "/target.csv");
+  std::string line, last;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line[0] != 's') last = line;
+  }
+  return last.empty() ? 0 : std::stoll(last.substr(0, last.find(',')));
+}
+
+ContributionMsg Valid(const deif::Config& config, deif::protocol::RunToken run, int id, long long step) {
+  ContributionMsg c;
+  c.run = run;
+  c.agent_id = id;
+  c.instance_token = 0xbadbadbad;
+  c.step = step;
+  c.info_vector = deif::InfoVector(1.0, 2.0);
+  c.info_matrix << 3.0, 0.5, 0.5, 4.0;
+  c.p_sensor = deif::Vector2(1.0, 1.0);
+  c.basis = deif::ToInfoState(deif::InitialState(config), deif::InitialCovariance(config));
+  return c;
+}
+
+void Pause(int ms) { std::this_thread::sleep_for(std::chrono::milliseconds(ms)); }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Sends what a misbehaving peer could into a running network (test tool)."};
+  std::string config_path, run_name, attack, run_dir;
+  double seconds = 10.0;
+  app.add_option("--config", config_path, "the run's config.yaml")->required();
+  app.add_option("--run", run_name, "the run's name (\"\": no run partition)")->required();
+  app.add_option("--attack", attack, "contributions | truth | ranges | states | flood")->required();
+  app.add_option("--follow", run_dir, "run folder whose target.csv tells the current step")->required();
+  app.add_option("--seconds", seconds, "how long the flood lasts");
+  CLI11_PARSE(app, argc, argv);
+
+  const deif::Config config = deif::LoadConfig(config_path);
+  const auto run = deif::protocol::RunTokenOf(run_name);
+  deif::dds::Node node(config, "hostile", run_name.empty() ? "no-such-run" : run_name);
+  node.AddWriter(deif::dds::Topic::kContribution);
+  node.AddWriter(deif::dds::Topic::kTruth);
+  node.AddWriter(deif::dds::Topic::kRange);
+  node.AddWriter(deif::dds::Topic::kAgentState);
+  node.StartLiveliness();
+  Pause(2500);  // discovery and matching settle, so every agent receives every sample
+
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  const int count = config.agents.count;
+  long sent = 0;
+  const auto send = [&](const auto& msg, int pause_ms) {
+    node.Write(msg);
+    ++sent;
+    if (pause_ms > 0) Pause(pause_ms);
+  };
+
+  if (attack == "contributions") {
+    for (int round = 0; round < 3; ++round) {
+      const int live_id = 1 + round % count;  // cycle the claimed id over the live agents
+      const auto next = [&] { return CurrentStep(run_dir) + 1; };
+      auto c = Valid(config, run, live_id, next());
+      c.info_vector.x() = nan;
+      send(c, 40);  // non-finite i_j
+      c = Valid(config, run, live_id, next());
+      c.info_matrix(1, 1) = inf;
+      send(c, 40);  // non-finite I_j
+      c = Valid(config, run, live_id, next());
+      c.info_matrix(1, 0) = -3.0;
+      send(c, 40);  // not symmetric
+      c = Valid(config, run, live_id, next());
+      c.info_matrix << 1.0, 5.0, 5.0, 1.0;
+      send(c, 40);  // symmetric but indefinite (eigenvalues 6 and -4)
+      c = Valid(config, run, live_id, next());
+      c.info_matrix(0, 0) = 1e300;
+      send(c, 40);  // absurd magnitude
+      c = Valid(config, run, live_id, next());
+      c.basis.Y(0, 0) = -1.0;
+      send(c, 40);  // a basis that is not a valid information state
+      send(Valid(config, run, live_id, next() + 1000), 40);  // a step far ahead
+      send(Valid(config, run, live_id, next() - 1000), 40);  // a stale step
+      send(Valid(config, run, count + 7, next()), 40);       // an id no agent has
+      const long long step = next();
+      send(Valid(config, run, live_id, step), 40);  // well formed, under a live agent's id ...
+      send(Valid(config, run, live_id, step), 40);  // ... and again
+    }
+  } else if (attack == "truth") {
+    deif::protocol::TruthMsg end;
+    end.run = run;
+    end.step = -1;
+    send(end, 50);
+    deif::protocol::TruthMsg far = end;
+    far.step = static_cast<long long>(1e12);
+    send(far, 50);
+  } else if (attack == "ranges") {
+    for (int id = 1; id <= count; ++id) {
+      deif::protocol::RangeMsg r;
+      r.run = run;
+      r.agent_id = id;
+      r.step = CurrentStep(run_dir) + 1;
+      r.measured = true;
+      r.range_m = 2.0;
+      r.variance_m2 = 0.0;
+      r.roll_call = {id};
+      send(r, 40);  // variance 0
+      r.variance_m2 = 5.3e-4;
+      r.range_m = 50.0;
+      send(r, 40);  // a 50 m range (from a writer that is not the run's target)
+      r.step = static_cast<long long>(1e12);
+      send(r, 40);  // a step beyond any run
+    }
+  } else if (attack == "states") {
+    deif::protocol::StateMsg s;
+    s.run = run;
+    s.agent_id = count + 95;  // an id outside 1..count
+    s.step = CurrentStep(run_dir);
+    s.instance_token = 0xbadbadbad;
+    send(s, 40);
+    s.agent_id = 1;
+    s.position_m = deif::Vector2(nan, 0.0);
+    send(s, 40);  // a NaN position under a live id
+  } else if (attack == "flood") {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                            std::chrono::duration<double>(seconds));
+    long long i = 0;
+    long long step = CurrentStep(run_dir) + 1;
+    while (std::chrono::steady_clock::now() < end) {
+      send(Valid(config, run, count + 1 + static_cast<int>(i++ % 50), step), 0);
+      if (i % 1000 == 0) step = CurrentStep(run_dir) + 1;
+    }
+  } else {
+    std::fprintf(stderr, "deif_hostile: error: unknown --attack '%s'\n", attack.c_str());
+    return 2;
+  }
+  std::printf("sent %ld %s\n", sent, attack.c_str());
+  std::fflush(stdout);
+  Pause(500);
+  return 0;
+}
