@@ -154,8 +154,11 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
     return;
   }
   // Ahead of this agent: held while within the history plus the fusion window of the last
-  // step written (after a freeze the peers' backlog can arrive before the target's).
-  if (ever_opened_ && msg.step > written_ + config_.network.history_steps +
+  // step written or announced (after a freeze the peers' backlog can arrive before the
+  // target's).
+  StepIndex known = written_;
+  if (!pending_ranges_.empty()) known = std::max(known, pending_ranges_.rbegin()->first);
+  if (ever_opened_ && msg.step > known + config_.network.history_steps +
                                      config_.network.fusion_window_steps) {
     Drop(who, "too_far_ahead");
     return;
@@ -438,10 +441,10 @@ void AgentProtocol::FinishStep(double now_s) {
   }
   const Eif posterior(model_, r.posterior);
   const Vector2 p_estimate = posterior.PositionEstimate();  // x(k|k)
-  // A newer step is already announced: this one is caught up after a freeze; the agent
-  // does not move for it (it did not move while frozen).
-  const bool catching_up = !pending_ranges_.empty() && pending_ranges_.rbegin()->first > r.step;
-  if (!catching_up) {
+  // The agent moves only at a step it was measured at: an agent left out of the roll call
+  // (frozen, rejoining, cut off from the target) holds its position, so whatever order its
+  // backlog arrives in, its path is the same.
+  if (r.own_range) {
     // The ring of this step: the roll call (or, without one, everyone fused), each at its
     // position of step k-1, the one its range was measured from.
     std::map<AgentId, Vector2> positions;

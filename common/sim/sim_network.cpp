@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <tuple>
 
 #include "common/core/random.hpp"
 
@@ -12,6 +13,8 @@ namespace {
 // A lost repair round is retried for at most this long before the sample is lost for good
 // (a real writer would have long evicted it).
 constexpr int kMaxRepairRounds = 1000;
+// Samples a frozen process's socket buffer holds per writer (1 MiB of ~300-byte samples).
+constexpr std::size_t kSocketBufferSamples = 3000;
 
 }  // namespace
 
@@ -94,9 +97,12 @@ void SimNetwork::Transmit(double now_s, NodeId from, NodeId to, const Message& m
   if (reader == NodeState::kDead) return;
   Channel& channel = channels_[{from, to}];
   if (reader == NodeState::kFrozen || !Connected(from, to)) {
-    // Held by the writer's reliable history until the reader can be reached again.
-    channel.held.emplace_back(now_s, message);
-    const std::size_t depth = HistoryDepth(message);
+    // A frozen reader's host still receives: the samples wait in its socket buffer and all
+    // arrive when it resumes. Across a cut link only the writer's reliable history (its
+    // last samples per key) can be repaired at the heal.
+    channel.held.emplace_back(seq_++, message);
+    const std::size_t depth =
+        reader == NodeState::kFrozen ? kSocketBufferSamples : HistoryDepth(message);
     if (channel.held.size() > depth) {
       channel.held.erase(channel.held.begin(),
                          channel.held.end() - static_cast<std::ptrdiff_t>(depth));
@@ -154,7 +160,7 @@ std::vector<NetworkEvent> SimNetwork::PopDue(double now_s) {
     const NodeState reader = nodes_[static_cast<std::size_t>(delivery.to)];
     if (reader == NodeState::kDead) continue;
     if (reader == NodeState::kFrozen) {
-      channels_[{delivery.from, delivery.to}].held.emplace_back(item.time_s, delivery.message);
+      channels_[{delivery.from, delivery.to}].held.emplace_back(item.seq, delivery.message);
       continue;
     }
     Heard(delivery.to, delivery.from, item.time_s);
@@ -206,14 +212,18 @@ void SimNetwork::SetStep(StepIndex step, double now_s) {
 }
 
 void SimNetwork::ReleaseHeld(double now_s) {
+  // Everything that can now reach its reader goes out in the order it was first sent.
+  std::vector<std::tuple<std::uint64_t, NodeId, NodeId, Message>> release;
   for (auto& [link, channel] : channels_) {
     if (channel.held.empty()) continue;
     const auto& [from, to] = link;
     if (!IsRunning(to) || !Connected(from, to)) continue;
-    std::vector<std::pair<double, Message>> held;
-    held.swap(channel.held);
-    for (const auto& [sent_s, message] : held) Transmit(now_s, from, to, message, false);
+    for (auto& [seq, message] : channel.held) release.emplace_back(seq, from, to, std::move(message));
+    channel.held.clear();
   }
+  std::sort(release.begin(), release.end(),
+            [](const auto& a, const auto& b) { return std::get<0>(a) < std::get<0>(b); });
+  for (const auto& [seq, from, to, message] : release) Transmit(now_s, from, to, message, false);
 }
 
 void SimNetwork::Kill(NodeId node, double /*now_s*/) {

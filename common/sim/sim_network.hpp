@@ -87,8 +87,9 @@ class SimNetwork {
  private:
   struct Channel {
     double last_delivery_s = 0.0;  // in order: nothing overtakes what went before
-    // Samples held back while the link is cut or the reader frozen, in order.
-    std::vector<std::pair<double, Message>> held;
+    // Samples held back while the link is cut or the reader frozen, in order, with the
+    // global send order (seq) so a resumed reader gets them as its socket would.
+    std::vector<std::pair<std::uint64_t, Message>> held;
   };
   struct Queued {
     double time_s;

@@ -398,16 +398,31 @@ class Launcher:
         self.log.flush()
 
     # ------------------------------------------------------------------ the run
+    def service(self):
+        """One round of the launcher's duties: answer held steps, cut and heal partitions.
+        Returns the step the target reached."""
+        self._handle_holds()
+        step = self.current_step()
+        if self.hosts is not None and self.partitions:
+            self._handle_partitions(step)
+        return step
+
+    def wait_for_step(self, step, timeout_s=120.0):
+        """Runs the launcher's duties until the target reached `step` (for scripts and
+        tests that act on a running network). Raises TimeoutError."""
+        deadline = time.time() + timeout_s
+        while self.service() < step:
+            if time.time() > deadline or self.procs["target"].popen.poll() is not None:
+                raise TimeoutError(f"the run did not reach step {step}")
+            time.sleep(0.02)
+
     def wait(self):
         deadline = time.time() + self.timeout_s
         target = self.procs["target"]
         last_print = 0.0
         timed_out = True
         while time.time() < deadline:
-            self._handle_holds()
-            step = self.current_step()
-            if self.hosts is not None and self.partitions:
-                self._handle_partitions(step)
+            step = self.service()
             pending = [f for f in self.faults if f.applied_unix_s is None]
             if target.popen.poll() is not None and self.holds.empty():
                 if target.popen.returncode != 0 or not pending or not any(
@@ -473,6 +488,15 @@ class Launcher:
         metrics = self.evaluate()
         if metrics.get("non_finite_estimates"):
             ok = False
+        # What every process rejected and dropped, by reason (each leaves its counters).
+        counters = {}
+        for name in sorted(os.listdir(self.out_dir)):
+            if name.endswith(".counters.json"):
+                try:
+                    with open(os.path.join(self.out_dir, name)) as f:
+                        counters[name[:-len(".counters.json")]] = json.load(f)
+                except (OSError, ValueError):
+                    pass
         summary = {
             "config": self.cfg,
             "config_file": "config.yaml",
@@ -489,6 +513,7 @@ class Launcher:
             "wall_time_s": time.time() - self.started,
             "shm_files_removed": removed,
             "metrics": metrics,
+            "counters": counters,
             "interrupted_by_signal": self.interrupted,
             "ok": ok,
         }

@@ -76,8 +76,16 @@ int main(int argc, char** argv) {
   node.AddWriter(deif::dds::Topic::kTruth);
   node.AddWriter(deif::dds::Topic::kRange);
   node.AddWriter(deif::dds::Topic::kAgentState);
+  node.AddReader({deif::dds::Topic::kContribution, {}});
   node.StartLiveliness();
-  Pause(2500);  // discovery and matching settle, so every agent receives every sample
+  // Wait until this participant has discovered every agent (so every agent receives every
+  // sample), then a little more for the agents to discover it.
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (node.MatchedWriters(deif::dds::Topic::kContribution) < config.agents.count &&
+         std::chrono::steady_clock::now() < give_up) {
+    node.Wait(std::chrono::steady_clock::now() + std::chrono::milliseconds(20));
+  }
+  Pause(300);
 
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
@@ -91,41 +99,43 @@ int main(int argc, char** argv) {
 
   if (attack == "contributions") {
     for (int round = 0; round < 3; ++round) {
-      const int live_id = 1 + round % count;  // cycle the claimed id over the live agents
+      // The highest id first (the test kills that agent: its id is free to be claimed, so
+      // the content checks apply), then ids of live agents (refused by identity).
+      const int live_id = round == 0 ? count : round;
       const auto next = [&] { return CurrentStep(run_dir) + 1; };
       auto c = Valid(config, run, live_id, next());
       c.info_vector.x() = nan;
-      send(c, 40);  // non-finite i_j
+      send(c, 2);  // non-finite i_j
       c = Valid(config, run, live_id, next());
       c.info_matrix(1, 1) = inf;
-      send(c, 40);  // non-finite I_j
+      send(c, 2);  // non-finite I_j
       c = Valid(config, run, live_id, next());
       c.info_matrix(1, 0) = -3.0;
-      send(c, 40);  // not symmetric
+      send(c, 2);  // not symmetric
       c = Valid(config, run, live_id, next());
       c.info_matrix << 1.0, 5.0, 5.0, 1.0;
-      send(c, 40);  // symmetric but indefinite (eigenvalues 6 and -4)
+      send(c, 2);  // symmetric but indefinite (eigenvalues 6 and -4)
       c = Valid(config, run, live_id, next());
       c.info_matrix(0, 0) = 1e300;
-      send(c, 40);  // absurd magnitude
+      send(c, 2);  // absurd magnitude
       c = Valid(config, run, live_id, next());
       c.basis.Y(0, 0) = -1.0;
-      send(c, 40);  // a basis that is not a valid information state
-      send(Valid(config, run, live_id, next() + 1000), 40);  // a step far ahead
-      send(Valid(config, run, live_id, next() - 1000), 40);  // a stale step
-      send(Valid(config, run, count + 7, next()), 40);       // an id no agent has
+      send(c, 2);  // a basis that is not a valid information state
+      send(Valid(config, run, live_id, next() + 1000), 2);  // a step far ahead
+      send(Valid(config, run, live_id, next() - 1000), 2);  // a stale step
+      send(Valid(config, run, count + 7, next()), 2);       // an id no agent has
       const long long step = next();
-      send(Valid(config, run, live_id, step), 40);  // well formed, under a live agent's id ...
-      send(Valid(config, run, live_id, step), 40);  // ... and again
+      send(Valid(config, run, live_id, step), 2);  // well formed, under a live agent's id ...
+      send(Valid(config, run, live_id, step), 2);  // ... and again
     }
   } else if (attack == "truth") {
     deif::protocol::TruthMsg end;
     end.run = run;
     end.step = -1;
-    send(end, 50);
+    send(end, 2);
     deif::protocol::TruthMsg far = end;
     far.step = static_cast<long long>(1e12);
-    send(far, 50);
+    send(far, 2);
   } else if (attack == "ranges") {
     for (int id = 1; id <= count; ++id) {
       deif::protocol::RangeMsg r;
@@ -136,12 +146,12 @@ int main(int argc, char** argv) {
       r.range_m = 2.0;
       r.variance_m2 = 0.0;
       r.roll_call = {id};
-      send(r, 40);  // variance 0
+      send(r, 2);  // variance 0
       r.variance_m2 = 5.3e-4;
       r.range_m = 50.0;
-      send(r, 40);  // a 50 m range (from a writer that is not the run's target)
+      send(r, 2);  // a 50 m range (from a writer that is not the run's target)
       r.step = static_cast<long long>(1e12);
-      send(r, 40);  // a step beyond any run
+      send(r, 2);  // a step beyond any run
     }
   } else if (attack == "states") {
     deif::protocol::StateMsg s;
@@ -149,17 +159,18 @@ int main(int argc, char** argv) {
     s.agent_id = count + 95;  // an id outside 1..count
     s.step = CurrentStep(run_dir);
     s.instance_token = 0xbadbadbad;
-    send(s, 40);
+    send(s, 2);
     s.agent_id = 1;
     s.position_m = deif::Vector2(nan, 0.0);
-    send(s, 40);  // a NaN position under a live id
+    send(s, 2);  // a NaN position under a live id
   } else if (attack == "flood") {
     const auto end = std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                                             std::chrono::duration<double>(seconds));
     long long i = 0;
     long long step = CurrentStep(run_dir) + 1;
     while (std::chrono::steady_clock::now() < end) {
-      send(Valid(config, run, count + 1 + static_cast<int>(i++ % 50), step), 0);
+      send(Valid(config, run, count + 1, step), 0);  // one unknown id (one DDS instance)
+      ++i;
       if (i % 1000 == 0) step = CurrentStep(run_dir) + 1;
     }
   } else {

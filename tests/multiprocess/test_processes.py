@@ -1,0 +1,338 @@
+"""Multi-process tests: the real deif_target and deif_agent processes over real Fast DDS,
+launched by deif.launcher, each on its own DDS domain.
+
+In lock-step, faults land on their exact step, so a run with faults is reproducible bit for
+bit, and every test compares the processes with the in-process simulation (deif_sim) of
+the same config: the same protocol over a simulated network.
+"""
+import math
+import os
+import re
+import subprocess
+import time
+
+from deif import artefacts, launcher, paths
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SLOW_CIRCLE = os.path.join(HERE, "configs", "slow_circle.yaml")
+DEG = math.pi / 180.0
+
+
+def rows(run, j):
+    return artefacts.read_csv(os.path.join(run, f"agent_{j}.csv"))
+
+
+def launch(work, domain, name="run", config=SLOW_CIRCLE, **kw):
+    kw.setdefault("progress", False)
+    return launcher.run(config, os.path.join(work, name), domain=domain, **kw)
+
+
+def oracle(run_dir, work=None):
+    """The in-process simulation of the run's own config (faults included)."""
+    out = run_dir + "-oracle"
+    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(run_dir, "config.yaml"),
+                    "--out", out, "--quiet"], check=True)
+    return out
+
+
+def largest_difference(run_dir, ref_dir, agents, keys=("x_est", "y_est", "p_xx", "p_xy", "p_yy",
+                                                       "pos_x", "pos_y")):
+    """The largest difference between a run's rows and a reference run's, step by step (and
+    the number of rows compared)."""
+    worst, compared = 0.0, 0
+    for j in agents:
+        ref = {r["step"]: r for r in rows(ref_dir, j)}
+        for r in rows(run_dir, j):
+            assert r["step"] in ref, f"agent {j} wrote step {r['step']} that the reference did not"
+            for k in keys:
+                worst = max(worst, abs(float(r[k]) - float(ref[r["step"]][k])))
+            compared += 1
+    return worst, compared
+
+
+def final_gap_error(run, agents):
+    angles = sorted(float(rows(run, j)[-1]["angle"]) % (2 * math.pi) for j in agents)
+    gaps = [b - a for a, b in zip(angles, angles[1:])] + [angles[0] + 2 * math.pi - angles[-1]]
+    if len(gaps) == 2:
+        return abs(min(gaps) - math.pi / 2)
+    return max(abs(g - 2 * math.pi / len(gaps)) for g in gaps)
+
+
+def steps_of(run, j):
+    return [int(r["step"]) for r in rows(run, j)]
+
+
+def counted(summary, agent):
+    c = summary["counters"][f"agent_{agent}"]
+    return c["rejected"] + c["dropped"]
+
+
+LOST = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d+)\].* agent (\d+) lost")
+
+
+def exclusion_times(run, survivors, victim):
+    """When each survivor logged the victim's exclusion (wall clock)."""
+    times = {}
+    for j in survivors:
+        with open(os.path.join(run, "logs", f"agent-{j}.log")) as f:
+            for line in f:
+                m = LOST.match(line)
+                if m and int(m.group(3)) == victim:
+                    times[j] = time.mktime(time.strptime(m.group(1), "%Y-%m-%d %H:%M:%S")) + float("0." + m.group(2))
+                    break
+    return times
+
+
+# ----------------------------------------------------------------------------------------
+def test_equality(work, domain):
+    """N=4, lock-step, 300 steps: every agent equals the in-process simulation and the
+    centralized EIF replayed over ranges.csv at every step; gaps converge to pi/2 +- 1 deg."""
+    res = launch(work, domain, agents=4, steps=300)
+    assert res.ok, res.summary["processes"]
+    for j in range(1, 5):
+        assert steps_of(res.out_dir, j) == list(range(1, 301))
+        assert all(r["fused"] == "4" and r["complete"] == "1" for r in rows(res.out_dir, j))
+    worst, n = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert n == 1200 and worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+    central_csv = os.path.join(work, "central.csv")
+    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(res.out_dir, "config.yaml"),
+                    "--replay-ranges", os.path.join(res.out_dir, "ranges.csv"), "--replay-out",
+                    central_csv, "--quiet"], check=True)
+    central = {r["step"]: r for r in artefacts.read_csv(central_csv)}
+    worst_central = max(abs(float(r[k]) - float(central[r["step"]][k]))
+                        for j in range(1, 5) for r in rows(res.out_dir, j) for k in ("x_est", "y_est"))
+    assert worst_central <= 1e-9
+    assert final_gap_error(res.out_dir, range(1, 5)) <= 1 * DEG
+    assert res.summary["metrics"]["agreement_fraction"] == 1.0
+
+
+def test_kill_one(work, domain):
+    """kill -9 of agent 3 at step 100: it lands on step 100 exactly; the survivors exclude it
+    within a lease, lose no step, fuse three from step 100, equal the simulation bit for bit
+    and spread to 2 pi/3 +- 1 deg."""
+    res = launch(work, domain, agents=4, steps=300, faults=[launcher.Fault(100, "kill", 3)])
+    assert res.ok, res.summary["processes"]
+    fault = res.summary["faults"][0]
+    assert fault["applied_at_step"] == 100
+    assert steps_of(res.out_dir, 3)[-1] == 99  # it died before step 100
+    survivors = [1, 2, 4]
+    for j in survivors:
+        assert steps_of(res.out_dir, j) == list(range(1, 301))
+        assert all(r["fused"] == "3" for r in rows(res.out_dir, j)[99:])
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+    lat = {j: t - fault["applied_unix_s"] for j, t in exclusion_times(res.out_dir, survivors, 3).items()}
+    print("kill-to-exclusion latency [s]:", {j: round(v, 3) for j, v in lat.items()})
+    assert sorted(lat) == survivors and max(lat.values()) < 1.0
+    assert final_gap_error(res.out_dir, survivors) <= 1 * DEG
+
+
+def test_down_to_two(work, domain):
+    """N=5 killed down to 2: the two survivors equal the simulation and end pi/2 apart."""
+    faults = [launcher.Fault(60, "kill", 5), launcher.Fault(120, "kill", 2), launcher.Fault(180, "kill", 4)]
+    res = launch(work, domain, agents=5, steps=320, faults=faults)
+    assert res.ok, res.summary["processes"]
+    for j in (1, 3):
+        last = rows(res.out_dir, j)[-1]
+        assert int(last["step"]) == 320 and int(last["alive"]) == 2
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 6))
+    assert worst == 0.0
+    assert final_gap_error(res.out_dir, (1, 3)) <= 1 * DEG
+
+
+def test_target_restart(work, domain):
+    """The target is killed and restarted before step 100: no agent notices in its numbers
+    (the run equals the simulation, where a restart changes nothing) and every process ends 0."""
+    res = launch(work, domain, agents=4, steps=250, faults=[launcher.Fault(100, "restart_target")])
+    assert res.ok, res.summary["processes"]
+    assert res.summary["faults"][0]["applied_at_step"] == 100
+    target = next(p for p in res.summary["processes"] if p["name"] == "target")
+    assert target["restarts"] == 1
+    for j in range(1, 5):
+        assert steps_of(res.out_dir, j) == list(range(1, 251))
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+
+
+def test_frozen_agent(work, domain):
+    """Agent 2 frozen (SIGSTOP) at step 80 and resumed at 140: the others fuse three meanwhile,
+    equal to the simulation; once back, agent 2 agrees with them bit for bit and the ring of
+    four re-forms."""
+    faults = [launcher.Fault(80, "stop", 2), launcher.Fault(140, "cont", 2)]
+    res = launch(work, domain, agents=4, steps=300, faults=faults)
+    assert res.ok, res.summary["processes"]
+    assert [f["applied_at_step"] for f in res.summary["faults"]] == [80, 140]
+    sim = oracle(res.out_dir, work)
+    worst, _ = largest_difference(res.out_dir, sim, (1, 3, 4))
+    assert worst == 0.0
+    for j in (1, 3, 4):
+        assert all(r["fused"] == "3" for r in rows(res.out_dir, j)[79:139])
+        assert rows(res.out_dir, j)[-1]["fused"] == "4"
+    back = {r["step"]: r for r in rows(res.out_dir, 2) if int(r["step"]) >= 140}
+    ref = {r["step"]: r for r in rows(res.out_dir, 1)}
+    assert len(back) == 161
+    assert max(abs(float(r["x_est"]) - float(ref[k]["x_est"])) for k, r in back.items()) == 0.0
+    assert final_gap_error(res.out_dir, range(1, 5)) <= 1 * DEG
+
+
+def test_duplicate_id(work, domain):
+    """A second agent with a live id refuses to start (exit 3, a clear line) and the run goes
+    on undisturbed."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=3, steps=3000,
+                            domain=domain, progress=False)
+    try:
+        lau.start()
+        lau.wait_for_step(20)
+        dup = subprocess.run([paths.executable("deif_agent"), "--config", lau.config_path, "--id", "2",
+                              "--run", lau.run_name, "--out", os.path.join(work, "dup")],
+                             capture_output=True, text=True, timeout=60)
+        dup_done = lau.current_step()
+        lau.wait()
+    finally:
+        lau.terminate_all()
+        res = lau.finish()
+    assert dup.returncode == 3, dup.stderr[-500:]
+    assert "already live" in dup.stderr
+    assert dup_done < 3000
+    assert res.ok
+    assert steps_of(res.out_dir, 2)[-1] == 3000
+
+
+def hostile(work, domain, attack, config=SLOW_CIRCLE, agents=4, steps=1500, faults=(), at_step=30,
+            seconds=None):
+    """A run with a hostile peer in its partition; returns (result, hostile's stdout)."""
+    lau = launcher.Launcher(config, os.path.join(work, "run"), agents=agents, steps=steps,
+                            domain=domain, faults=list(faults), progress=False)
+    try:
+        lau.start()
+        lau.wait_for_step(at_step)
+        argv = [os.environ.get("DEIF_HOSTILE", paths.executable("deif_hostile")), "--config",
+                lau.config_path, "--run", lau.run_name, "--attack", attack, "--follow", lau.out_dir]
+        if seconds:
+            argv += ["--seconds", str(seconds)]
+        h = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        hostile_done = lau.current_step()
+        lau.wait()
+    finally:
+        lau.terminate_all()
+        res = lau.finish()
+    assert h.returncode == 0, h.stderr[-800:]
+    assert hostile_done < steps, "the run ended before the hostile peer was done"
+    return res, h.stdout
+
+
+def test_hostile_contributions(work, domain):
+    """NaN, infinite, asymmetric, indefinite, huge, bad-basis, far-future, stale, unknown-id,
+    impersonating and duplicate contributions, under live ids and under the id of an agent
+    killed at step 5: every one is counted by every agent, none is fused (the estimates equal
+    the simulation bit for bit)."""
+    res, out = hostile(work, domain, "contributions", agents=5, faults=[launcher.Fault(5, "kill", 5)])
+    sent = int(re.search(r"sent (\d+)", out).group(1))
+    assert res.ok, res.summary["processes"]
+    for j in range(1, 5):
+        assert counted(res.summary, j) == sent, res.summary["counters"][f"agent_{j}"]
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+
+
+def test_hostile_truth(work, domain):
+    """An end-of-run marker (step -1) and a step of 1e12 on deif/truth: agents never read the
+    truth, so the run completes every step unharmed."""
+    res, _ = hostile(work, domain, "truth")
+    assert res.ok
+    for j in range(1, 5):
+        assert steps_of(res.out_dir, j) == list(range(1, 1501))
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+
+
+def test_hostile_ranges(work, domain):
+    """Ranges of variance 0, of 50 m and of step 1e12 from a participant that is not the run's
+    target: every agent rejects and counts each; nothing reaches an estimate."""
+    res, out = hostile(work, domain, "ranges")
+    sent = int(re.search(r"sent (\d+)", out).group(1))
+    assert res.ok
+    for j in range(1, 5):
+        assert counted(res.summary, j) == sent // 4
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+
+
+def test_hostile_states(work, domain):
+    """An agent state for an id outside 1..count and one with a NaN position under a live id:
+    the target rejects and counts both, measures nobody from them, and the run is unharmed."""
+    res, out = hostile(work, domain, "states")
+    assert res.ok
+    assert res.summary["counters"]["target"]["rejected"] == 2, res.summary["counters"]["target"]
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+    assert all(int(r["agent_id"]) <= 4 for r in artefacts.read_csv(os.path.join(res.out_dir, "ranges.csv")))
+
+
+def test_hostile_flood(work, domain):
+    """A flood of contributions with unknown ids for 10 s: no healthy agent is declared lost,
+    the run completes, equal to the simulation, and every agent counts the flood."""
+    res, out = hostile(work, domain, "flood", steps=8000, seconds=10, at_step=50)
+    sent = int(re.search(r"sent (\d+)", out).group(1))
+    print(f"flood: {sent} contributions in 10 s;",
+          {j: counted(res.summary, j) for j in range(1, 5)}, "counted by the agents")
+    assert sent > 10000
+    assert res.ok
+    for j in range(1, 5):
+        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+            assert " lost (liveliness)" not in f.read()
+        # Reliable but keep-last: a writer flooding faster than its readers take overwrites
+        # its oldest samples, so an agent counts most, not all, of them.
+        assert 1000 <= counted(res.summary, j) <= sent
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+
+
+def test_stray_target(work, domain):
+    """A deif_target of another run (another config) on the same domain changes nothing; a
+    second target in the same run refuses to start (exit 3)."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=3000,
+                            domain=domain, progress=False)
+    stray_dir = os.path.join(work, "stray")
+    try:
+        lau.start()
+        lau.wait_for_step(20)
+        stray = subprocess.Popen([paths.executable("deif_target"), "--config",
+                                  os.path.join(paths.ROOT, "configs", "default.yaml"), "--domain",
+                                  str(domain), "--set", "network.start_timeout_s=3", "--out", stray_dir],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        second = subprocess.run([paths.executable("deif_target"), "--config", lau.config_path,
+                                 "--run", lau.run_name, "--out", os.path.join(work, "second")],
+                                capture_output=True, text=True, timeout=60)
+        stray_err = stray.communicate(timeout=60)[1]
+        lau.wait()
+    finally:
+        lau.terminate_all()
+        res = lau.finish()
+    assert second.returncode == 3 and "already has a target" in second.stderr
+    assert stray.returncode == 1 and "no agent appeared" in stray_err  # it saw none of ours
+    assert res.ok
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0
+
+
+def test_run_isolation(work, domain):
+    """Two runs of the same config on the same domain at the same time: each completes, equal
+    to the simulation, as if alone."""
+    a = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "a"), agents=3, steps=200, domain=domain,
+                          progress=False)
+    b = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "b"), agents=3, steps=200, domain=domain,
+                          progress=False)
+    try:
+        a.start()
+        b.start()
+        a.wait()
+        b.wait()
+    finally:
+        a.terminate_all()
+        b.terminate_all()
+        ra, rb = a.finish(), b.finish()
+    assert ra.ok and rb.ok
+    for r in (ra, rb):
+        worst, n = largest_difference(r.out_dir, oracle(r.out_dir), range(1, 4))
+        assert n == 600 and worst == 0.0
