@@ -1,0 +1,126 @@
+"""deif.bench's reductions and tables on made-up measurements (no process is started), and
+the command line's argument checks."""
+import os
+import subprocess
+import time
+
+import pytest
+
+from conftest import ROOT
+from deif import bench, paths
+
+
+def test_percentiles_interpolate_and_skip_missing():
+    assert bench.pct([], 50) is None
+    assert bench.pct([None, 3.0], 50) == 3.0
+    assert bench.pct([1.0, 2.0, 3.0, 4.0], 50) == 2.5
+    assert bench.pct([4.0, 1.0, 3.0, 2.0], 100) == 4.0
+    assert bench.pct(range(101), 99) == pytest.approx(99.0)
+    assert bench.median([None, 1.0, 5.0, 2.0]) == 2.0
+
+
+def test_pingpong_json_of_either_shape():
+    assert bench.rtt_us({"rtt_p50_us": 90.0, "rtt_p99_us": 150.0}, "p99") == 150.0
+    assert bench.rtt_us({"rtt_us": {"p50": 80.0}}, "p50") == 80.0
+    assert bench.rtt_us({"error": "x"}, "p50") is None
+
+
+def test_log_times_and_exclusion_lines(work_dir):
+    t = bench.log_unix_time("[2026-11-21 23:31:15.544] [agent-1] [warning] agent 2 lost (liveliness)")
+    assert t == pytest.approx(time.mktime(time.strptime("2026-11-21 23:31:15", "%Y-%m-%d %H:%M:%S")) + 0.544)
+    assert bench.log_unix_time("no timestamp") is None
+    log = os.path.join(work_dir, "agent-1.log")
+    with open(log, "w") as f:
+        f.write("[2026-11-21 23:31:15.100] [agent-1] [info] agent 1 up\n"
+                "[2026-11-21 23:31:15.544] [agent-1] [warning] agent 2 lost (liveliness); members now 3\n"
+                "[2026-11-21 23:31:16.000] [agent-1] [warning] agent 3 lost (liveliness); members now 2\n")
+    assert len(bench.lost_lines(log, 2)) == 1 and len(bench.lost_lines(log, 4)) == 0
+    os.makedirs(os.path.join(work_dir, "logs"))
+    with open(os.path.join(work_dir, "logs", "target.log"), "w") as f:
+        f.write("[2026-11-21 23:31:16.085] [target] [info] done at step 300 after 1.242 s\n")
+    rate = bench.target_log_rate(os.path.join(work_dir, "logs"))
+    assert rate["steps"] == 300 and rate["steps_per_s"] == pytest.approx(300 / 1.242)
+
+
+def test_settled_step_needs_rows_beliefs_and_the_gap():
+    rows = [{"step": str(k), "rows": "3", "gap_error": str(g)}
+            for k, g in [(10, 0.5), (11, 0.1), (12, 0.001), (13, 0.001)]]
+    alive = {1: {10: 3, 11: 3, 12: 4, 13: 3}, 2: {10: 3, 11: 3, 12: 3, 13: 3}}
+    assert bench.settled_step(rows, alive, 3, 9) == 13  # step 12: agent 1 still counts 4
+    assert bench.settled_step(rows, alive, 3, 13) is None
+    assert bench.settled_step(rows, alive, 4, 0) is None
+
+
+def test_a_program_older_than_its_source_is_skipped(work_dir, monkeypatch):
+    monkeypatch.setenv("DEIF_BUILD_DIR", work_dir)
+    exe, why = bench.bench_program("core_bench")
+    assert exe is None and "not found" in why
+    os.makedirs(os.path.join(work_dir, "bin"))
+    path = os.path.join(work_dir, "bin", "core_bench")
+    with open(path, "w") as f:
+        f.write("")
+    source = os.path.join(ROOT, "bench", "core_bench.cpp")
+    if os.path.exists(source):
+        os.utime(path, (0, 0))
+        exe, why = bench.bench_program("core_bench")
+        assert exe is None and "older than bench/core_bench.cpp" in why
+    os.utime(path, None)
+    assert bench.bench_program("core_bench") == (path, None)
+
+
+def made_up_results():
+    lock = {"4": {"n": 4, "steps": 300, "ok": True, "last_step": 300, "final_agents": 4,
+                  "latency_ms": {"p50": 1.0, "p99": 2.0}, "steps_per_s": 500.0,
+                  "steady": {"steps_per_s": 480.0, "cpu_s_per_step": 0.002},
+                  "discovery_s": {"first_fused_all": 1.1}, "rss_mb": {"agent_median": 18.0, "agent_max": 19.0}},
+            "64": {"n": 64, "steps": 60, "ok": True, "last_step": 60, "final_agents": 64,
+                   "timed_out_s": None, "steady": {"steps_per_s": 3.0},
+                   "rss_mb": {"agent_median": 21.0, "agent_max": 22.0}}}
+    return {"pingpong": {"shm": [{"rtt_p50_us": 100.0, "rtt_p99_us": 200.0}],
+                         "udp": [{"rtt_p50_us": 130.0, "rtt_p99_us": 260.0}], "shm_p50_us_median": 100.0},
+            "lockstep": lock,
+            "failure": {"n": 4, "kills": 3, "lease_s": 0.4,
+                        "exclusion_s": {"p50": 0.38, "p99": 0.39, "max": 0.39, "samples": 9, "not_seen": 0},
+                        "steps_to_1deg": {"p50": 10, "max": 11, "samples": 3}},
+            "wire": {"rows": [{"n": 2, "bytes_per_step": 4000.0, "bytes_per_agent_per_step": 2000.0,
+                               "packets_per_step": 17.0, "bytes_per_step_over_n2": 1000.0,
+                               "steps_per_s_udp": 600.0}]},
+            "core": {"rows": [{"name": "BM_DeifAgentStep/N:4/model:0", "cpu_ns": 1000.0}]},
+            "skipped": {"pingpong": "made up"}}
+
+
+def test_goals_and_tables_from_made_up_figures():
+    res = made_up_results()
+    bench.evaluate_goals(res)
+    goals = {g["goal"]: g["met"] for g in res["goals"]["rows"]}
+    assert res["ratio_4_agent_latency_to_shm_rtt"] == pytest.approx(10.0)  # 1 ms against 100 us
+    assert goals == {"4 agents: step latency p50 <= 2 x SHM round trip p50": "no",
+                     "4 agents: >= 1000 steps/s": "no",
+                     "64 agents run the lock-step scenario to the end": "yes",
+                     "kill-to-exclusion p99 < 0.5 s": "yes",
+                     "resident memory <= 30 MB per agent (every N)": "yes"}
+    table = bench.make_table(res)
+    for heading in ("Raw floor", "Lock-step", "Goals", "Failure detection", "Wire cost", "Core micro-benchmarks"):
+        assert f"**{heading}" in table, heading
+    assert "| 4 | 300/300 ok | 500 | 480 |" in table
+    assert "| BM_DeifAgentStep (model:0) | 1.00 |" in table
+    assert "_pingpong: skipped: made up_" in table
+
+
+def test_a_section_that_did_not_run_leaves_no_goal():
+    res = {"failure": made_up_results()["failure"]}
+    bench.evaluate_goals(res)
+    assert [g["goal"] for g in res["goals"]["rows"]] == ["kill-to-exclusion p99 < 0.5 s"]
+
+
+def test_results_go_to_an_ignored_folder_only():
+    assert bench.RESULTS_DIR == os.path.join(ROOT, "bench", "results")
+    with open(os.path.join(ROOT, ".gitignore")) as f:
+        assert "/bench/results/" in f.read().split()
+
+
+@pytest.mark.parametrize("args,message", [(["--only", "nonsense"], "nonsense"), (["--agents", "2,x"], "--agents")])
+def test_command_line_refuses_bad_arguments(args, message):
+    p = subprocess.run([paths.PYTHON, os.path.join(ROOT, "scripts", "deif-bench"), *args],
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 2 and message in p.stdout

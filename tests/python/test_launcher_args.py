@@ -1,0 +1,118 @@
+"""deif.launcher's argument, fault and partition parsing and its config verdict, without
+starting a process: every check happens in the Launcher constructor (which only resolves the
+config through deif_config and writes the run folder's config.yaml) or in the parsers."""
+import os
+
+import pytest
+
+from conftest import ROOT
+from deif import config, launcher
+
+DEFAULT = os.path.join(ROOT, "configs", "default.yaml")
+
+
+def test_agent_fault_is_step_colon_id():
+    f = launcher.Fault.parse("100:2", "kill")
+    assert (f.step, f.action, f.agent, f.origin) == (100, "kill", 2, "--kill 100:2")
+    assert f.as_config() == {"step": 100, "action": "kill", "agent": 2}
+    s = launcher.Fault.parse("80:1", "stop")
+    assert (s.step, s.action, s.agent, s.origin) == (80, "stop", 1, "--stop 80:1")
+
+
+def test_restart_target_is_a_step_alone():
+    f = launcher.Fault.parse("120", "restart_target")
+    assert (f.step, f.action, f.agent, f.origin) == (120, "restart_target", None, "--restart-target 120")
+    assert f.as_config() == {"step": 120, "action": "restart_target"}
+
+
+@pytest.mark.parametrize("text,action,flag", [
+    ("100", "kill", "--kill"), ("a:2", "kill", "--kill"), ("1:2:3", "stop", "--stop"),
+    ("", "cont", "--cont"), ("1:2", "restart_target", "--restart-target"),
+])
+def test_malformed_fault_names_its_flag(text, action, flag):
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Fault.parse(text, action)
+    assert str(e.value).startswith(f"{flag} {text}: expected")
+
+
+def test_partition_is_step_seconds_host():
+    p = launcher.Partition.parse("50:1.5:2")
+    assert (p.step, p.seconds, p.host) == (50, 1.5, 2)
+
+
+@pytest.mark.parametrize("text", ["50:1.5", "x:1:2", "0:1:2", "50:0:2", "50:3600:2", "50:1:0"])
+def test_bad_partition_is_refused(text):
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Partition.parse(text)
+    assert str(e.value).startswith(f"--partition {text}:")
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"hosts": 0}, "--hosts 0"),
+    ({"loss": 1.0, "hosts": 2}, "--loss"),
+    ({"loss": 0.1}, "need --hosts 2"),
+    ({"partitions": [launcher.Partition(10, 1.0, 2)]}, "need --hosts 2"),
+    ({"hosts": 2, "partitions": [launcher.Partition(10, 1.0, 3)]}, "only 2 hosts"),
+])
+def test_bad_host_arguments_start_nothing(deif_sim, work_dir, kwargs, message):
+    out = os.path.join(work_dir, "run")
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(DEFAULT, out, **kwargs)
+    assert message in str(e.value)
+    assert not os.path.exists(out)
+
+
+def test_refused_config_names_the_key_and_starts_nothing(deif_sim, work_dir):
+    out = os.path.join(work_dir, "run")
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(DEFAULT, out, agents=0)
+    assert "agents.count" in str(e.value)
+    bad = os.path.join(work_dir, "bad.yaml")
+    with open(bad, "w") as f:
+        f.write("scenario:\n  steps: -3\n")
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(bad, out)
+    assert "bad.yaml:2" in str(e.value) and "scenario.steps" in str(e.value)
+    with pytest.raises(launcher.LaunchError):
+        launcher.run(bad, out)
+    assert not os.path.exists(out)
+
+
+@pytest.mark.parametrize("text,reason", [("10:9", "1..3"), ("60:1", "scenario.steps")])
+def test_refused_command_line_fault_is_blamed_on_its_flag(deif_sim, work_dir, text, reason):
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(DEFAULT, os.path.join(work_dir, "run"), agents=3, steps=50,
+                          faults=[launcher.Fault.parse(text, "kill")])
+    assert str(e.value).startswith(f"--kill {text}:") and reason in str(e.value)
+
+
+def test_overrides_reach_the_config_every_process_reads(deif_sim, work_dir):
+    out = os.path.join(work_dir, "run")
+    la = launcher.Launcher(DEFAULT, out, agents=3, steps=50, seed=9, domain=77,
+                           overrides=["target.trajectory=static"],
+                           faults=[launcher.Fault.parse("30:3", "stop"), launcher.Fault.parse("10:2", "kill")])
+    assert (la.n, la.steps, la.domain) == (3, 50, 77)
+    assert [(f.step, f.action, f.agent) for f in la.faults] == [(10, "kill", 2), (30, "stop", 3)]
+    assert sorted(os.listdir(out)) == ["config.yaml", "logs"]  # nothing else: nothing ran
+    written = config.resolve(os.path.join(out, "config.yaml"))
+    assert written["agents"]["count"] == 3
+    assert written["scenario"]["steps"] == 50 and written["scenario"]["seed"] == 9
+    assert written["network"]["domain_id"] == 77
+    assert written["target"]["trajectory"] == "static"
+    assert sorted(f["step"] for f in written["faults"]) == [10, 30]
+    assert written == la.cfg
+
+
+def test_a_used_run_folder_is_refused(deif_sim, work_dir):
+    out = os.path.join(work_dir, "run")
+    os.makedirs(out)
+    with open(os.path.join(out, "target.csv"), "w") as f:
+        f.write("step,t,x_true,y_true\n")
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(DEFAULT, out)
+    assert "exists and is not an empty folder" in str(e.value)
+
+
+def test_default_run_folder_is_under_runs():
+    path = launcher.default_out_dir(DEFAULT)
+    assert path.startswith(os.path.join(ROOT, "runs", "default-"))
