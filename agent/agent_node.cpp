@@ -99,7 +99,10 @@ int AgentNode::Run() {
     const std::vector<dds::Event> events = node_.Wait(deadline);
     const double now_s = dds::ToSeconds(dds::Clock::now());
     for (const dds::Event& event : events) Dispatch(event, now_s);
-    protocol_.OnPeersMatched(node_.MatchedWriters(dds::Topic::kContribution), now_s);
+    // Both ways: this agent hears every peer, and every peer hears this agent.
+    protocol_.OnPeersMatched(std::min(node_.MatchedWriters(dds::Topic::kContribution),
+                                      node_.MatchedReaders(dds::Topic::kContribution)),
+                             now_s);
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
   }

@@ -476,6 +476,14 @@ int Node::MatchedWriters(Topic topic) const {
   return status.current_count;
 }
 
+int Node::MatchedReaders(Topic topic) const {
+  auto it = impl_->writers.find(topic);
+  if (it == impl_->writers.end()) return 0;
+  fdds::PublicationMatchedStatus status;
+  it->second->get_publication_matched_status(status);
+  return status.current_count;
+}
+
 std::uint64_t RandomInstanceToken() {
   std::random_device device;
   const std::uint64_t high = device();

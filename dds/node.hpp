@@ -76,8 +76,10 @@ class Node {
   bool WaitForAcknowledgments(double seconds);
   // This node's writer of `topic` as peers see it.
   protocol::SenderKey WriterKey(Topic topic) const;
-  // How many remote writers currently match this node's reader of `topic`.
+  // How many writers currently match this node's reader of `topic` (its own included).
   int MatchedWriters(Topic topic) const;
+  // How many readers currently match this node's writer of `topic` (its own included).
+  int MatchedReaders(Topic topic) const;
 
   struct Impl;  // opaque: holds the Fast DDS entities
 

@@ -62,7 +62,9 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
     Reject("a process of another run", "other_run");
     return;
   }
-  if (const char* reason = ValidateRange(msg, config_, id_)) {
+  const char* reason = ValidateRange(msg, config_, id_);
+  const bool unusable_measurement = reason != nullptr && IsMeasurementReason(reason);
+  if (reason != nullptr && !unusable_measurement) {
     Reject("the target", reason);
     return;
   }
@@ -85,9 +87,14 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
   }
   last_target_contact_s_ = now_s;
   target_silent_logged_ = false;
+  if (unusable_measurement) {
+    // The run's target measured us, but the value cannot be used: the step goes on, and
+    // this agent's contribution carries no information (so nobody waits for it).
+    Reject("the target", reason);
+  }
   // The target measures from a position this process published. A range from the target's
   // history that was measured for an earlier process with our id is stale.
-  if (msg.measured && !PublishedPosition(msg.p_sensor)) {
+  if (msg.measured && !unusable_measurement && !PublishedPosition(msg.p_sensor)) {
     Drop("the target", "stale_range");
     return;
   }
@@ -98,7 +105,7 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
       Drop("the target", "range_too_old");
       return;
     }
-    ApplyRange(it->second, msg);
+    ApplyRange(it->second, msg, unusable_measurement);
     Advance(now_s);
     return;
   }
@@ -106,7 +113,7 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
     Drop("the target", "duplicate_range");
     return;
   }
-  pending_ranges_[msg.step] = PendingRange{msg, now_s};
+  pending_ranges_[msg.step] = PendingRange{msg, now_s, unusable_measurement};
   Advance(now_s);
 }
 
@@ -362,6 +369,7 @@ void AgentProtocol::OpenStep(StepIndex k, const std::optional<PendingRange>& ran
       z.variance_m2 = range->msg.variance_m2;
       z.p_sensor = range->msg.p_sensor;
       r.own_range = z;
+      r.own_unusable = range->unusable;
     }
   }
   auto early = early_.find(k);
@@ -511,7 +519,7 @@ void AgentProtocol::FinishStep(double now_s) {
   }
 }
 
-void AgentProtocol::ApplyRange(Record& r, const RangeMsg& msg) {
+void AgentProtocol::ApplyRange(Record& r, const RangeMsg& msg, bool unusable) {
   if (!r.roll_call) SetRollCall(r, msg.roll_call);
   if (msg.measured && !r.own_range) {
     RangeObservation z;
@@ -520,6 +528,7 @@ void AgentProtocol::ApplyRange(Record& r, const RangeMsg& msg) {
     z.variance_m2 = msg.variance_m2;
     z.p_sensor = msg.p_sensor;
     r.own_range = z;
+    r.own_unusable = unusable;
     if (!r.awaiting_basis) {
       EmitOwnContribution(r);
       if (r.written) {
@@ -550,9 +559,14 @@ void AgentProtocol::EmitOwnContribution(Record& r) {
   const RangeObservation& z = *r.own_range;
   const Eif prior(model_, r.prior);
   const Vector2 p_pred = prior.PositionEstimate();  // x(k|k-1): the linearisation point
-  // eqs (4.49)-(4.51) at this agent's own prediction.
-  Contribution c = ComputeContribution(r.step, z, p_pred, config_.sensing);
-  if (gate_sigma_ > 0.0) {
+  Contribution c;
+  c.agent_id = id_;
+  c.step = r.step;
+  if (!r.own_unusable) {
+    // eqs (4.49)-(4.51) at this agent's own prediction.
+    c = ComputeContribution(r.step, z, p_pred, config_.sensing);
+  }
+  if (gate_sigma_ > 0.0 && !r.own_unusable) {
     // Innovation gate: |z - h(x(k|k-1))| against gate * sqrt(H P(k|k-1) H^T + R).
     RowVector2 H;
     const double innovation = z.range_m - MeasureRange(p_pred, z.p_sensor, config_.sensing, &H);
@@ -575,7 +589,7 @@ void AgentProtocol::EmitOwnContribution(Record& r) {
   msg.step = r.step;
   msg.info_vector = c.info_vector;
   msg.info_matrix = c.info_matrix;
-  msg.p_sensor = z.p_sensor;
+  msg.p_sensor = r.own_unusable ? position_m_ : z.p_sensor;
   msg.basis = BaseOf(r);
   msg.merge_request = merge_pending_;
   merge_pending_ = false;
@@ -659,7 +673,8 @@ void AgentProtocol::Recompute(StepIndex from) {
     if (r.awaiting_basis) return;
     // The oldest record's predecessor has left the history: its prior stays as it was.
     const bool predecessor_gone = it == records_.begin() && r.step > 1 && !r.basis &&
-                                  records_.find(r.step - 1) == records_.end();
+                                  records_.find(r.step - 1) == records_.end() &&
+                                  r.prior.y.size() > 0;
     bool merge = false;
     for (const auto& [peer_id, held] : r.held) merge = merge || held.msg.merge_request;
     if (!predecessor_gone || merge) {

@@ -131,6 +131,7 @@ class AgentProtocol {
     double deadline_s = 0.0;
     std::optional<std::vector<AgentId>> roll_call;
     std::optional<RangeObservation> own_range;  // when this agent was measured
+    bool own_unusable = false;                  // ... but the value failed validation
     bool own_sent = false;
     bool awaiting_basis = false;     // rejoining: no usable posterior of step-1 yet
     std::optional<InfoState> basis;  // replaces the posterior of step-1 (adoption)
@@ -151,6 +152,7 @@ class AgentProtocol {
   struct PendingRange {
     RangeMsg msg;
     double arrival_s = 0.0;
+    bool unusable = false;  // measured, but the value failed validation
   };
 
   // Moves the protocol as far as it can go now.
@@ -159,7 +161,7 @@ class AgentProtocol {
   bool CanFinish(const Record& r, double now_s) const;
   void FinishStep(double now_s);
   bool IsComplete(const Record& r) const;
-  void ApplyRange(Record& r, const RangeMsg& msg);
+  void ApplyRange(Record& r, const RangeMsg& msg, bool unusable);
   void EmitOwnContribution(Record& r);
   bool TryAdopt(Record& r);
   void Recompute(StepIndex from);

@@ -124,7 +124,7 @@ std::optional<double> TargetProtocol::NextDeadline() const {
       if (RealTime()) {
         return step_start_s_ + config_.scenario.period_s;
       }
-      return step_start_s_ + config_.network.step_timeout_s;
+      return step_start_s_ + StepWait();
     case Phase::kApplyingFaults:
       return hold_deadline_s_;
     case Phase::kHolding:
@@ -209,10 +209,16 @@ bool TargetProtocol::StepDone(double now_s) const {
   if (RealTime()) return now_s >= step_start_s_ + config_.scenario.period_s;
   for (const auto& [id, agent] : agents_) {
     if (agent.alive && agent.latest && agent.latest->step < step_) {
-      if (now_s < step_start_s_ + config_.network.step_timeout_s) return false;
+      if (now_s < step_start_s_ + StepWait()) return false;
     }
   }
   return true;
+}
+
+double TargetProtocol::StepWait() const {
+  // An agent waits up to step_timeout_s for its peers, then publishes its state: the target
+  // waits that long and a lease more, so a late state still lands in this step.
+  return config_.network.step_timeout_s + config_.network.liveliness_lease_s;
 }
 
 bool TargetProtocol::FaultsApplied(double now_s) const {

@@ -92,6 +92,7 @@ class TargetProtocol {
 
   void Advance(double now_s);
   bool StepDone(double now_s) const;
+  double StepWait() const;
   bool FaultsApplied(double now_s) const;
   void BeginStep(StepIndex k, double now_s);
   void PublishStep(StepIndex k);

@@ -1,6 +1,7 @@
 #include "common/protocol/validation.hpp"
 
 #include <cmath>
+#include <string>
 
 namespace deif::protocol {
 
@@ -37,7 +38,7 @@ const char* ValidateRange(const RangeMsg& msg, const Config& config, AgentId sel
   if (!std::isfinite(msg.range_m) || !std::isfinite(msg.variance_m2) || !msg.p_sensor.allFinite()) {
     return "non_finite";
   }
-  if (msg.range_m < 0.0 || msg.range_m > kMaxRangeM) return "range_out_of_bounds";
+  if (std::abs(msg.range_m) > kMaxRangeM) return "range_out_of_bounds";
   if (msg.variance_m2 < kMinVarianceM2 || msg.variance_m2 > kMaxVarianceM2) {
     return "variance_out_of_bounds";
   }
@@ -46,6 +47,12 @@ const char* ValidateRange(const RangeMsg& msg, const Config& config, AgentId sel
   for (AgentId id : msg.roll_call) listed = listed || id == self;
   if (!listed) return "measured_but_not_in_roll_call";
   return nullptr;
+}
+
+bool IsMeasurementReason(const char* reason) {
+  const std::string r = reason;
+  return r == "non_finite" || r == "range_out_of_bounds" || r == "variance_out_of_bounds" ||
+         r == "position_out_of_bounds";
 }
 
 const char* ValidateContributionMsg(const ContributionMsg& msg, const Config& config) {

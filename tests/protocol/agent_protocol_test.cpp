@@ -448,3 +448,46 @@ TEST_CASE("The target holds a faulted step until told to go, and leaves a killed
     if (r.step >= 4) CHECK(r.agent_id != 2);
   }
 }
+
+TEST_CASE("A negative noisy range is a measurement like any other", "[protocol][validation]") {
+  // (Without the innovation gate: a range 2 m off the prediction would fail that one.)
+  ScriptedNetwork net(std::string(kThreeAgents) + "filter: {innovation_gate_sigma: 0}\n");
+  net.Start();
+  net.RunUntil(2);
+  net.Pump([](const Envelope& e) {
+    const auto* r = std::get_if<protocol::RangeMsg>(&e.message);
+    return r != nullptr && r->agent_id == 2 && r->step == 3;
+  });
+  REQUIRE(net.held.size() == 1);
+  std::get<protocol::RangeMsg>(net.held.front().message).range_m = -0.2;  // noise can do that
+  net.ReleaseHeld();
+  net.RunUntil(3);
+  CHECK(net.agents.at(2)->counters().rejected == 0);
+  const protocol::ContributionMsg c = ValidContributionFrom(net, 2, 3);
+  CHECK_FALSE(c.info_matrix.isZero(0.0));
+  CHECK(net.rows.at(1)[2].complete);
+}
+
+TEST_CASE("A measurement from the target that fails validation is counted, and the step goes "
+          "on with an empty contribution so nobody waits for it",
+          "[protocol][validation]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  net.Pump([](const Envelope& e) {
+    const auto* r = std::get_if<protocol::RangeMsg>(&e.message);
+    return r != nullptr && r->agent_id == 2 && r->step == 3;
+  });
+  REQUIRE(net.held.size() == 1);
+  std::get<protocol::RangeMsg>(net.held.front().message).variance_m2 =
+      std::numeric_limits<double>::quiet_NaN();
+  net.ReleaseHeld();
+  net.RunUntil(3);
+  CHECK(net.agents.at(2)->counters().by_reason.count("rejected: non_finite") == 1);
+  const protocol::ContributionMsg c = ValidContributionFrom(net, 2, 3);
+  CHECK(c.info_matrix.isZero(0.0));
+  CHECK(c.info_vector.isZero(0.0));
+  for (AgentId id = 1; id <= 3; ++id) CHECK(net.rows.at(id)[2].complete);
+  CHECK(net.now == 0.0);  // nobody waited for a timeout
+  CHECK(AllAgreeAt(net, 3));
+}
