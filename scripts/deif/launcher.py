@@ -160,7 +160,7 @@ def default_out_dir(config_path):
 class Launcher:
     def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
                  overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
-                 progress=True, log=sys.stderr, timeout_s=None):
+                 progress=True, log=sys.stderr, timeout_s=None, discovery_server=False):
         self.log = log
         self.progress = progress and hasattr(log, "isatty") and log.isatty()
         if hosts < 1:
@@ -192,6 +192,9 @@ class Launcher:
             sets.append(f"network.domain_id={domain}")
         if hosts > 1:
             sets.append("network.transport=udp")  # shared memory would cross the "hosts"
+        self.discovery_server = None  # (address, port) when the run has its own server
+        if discovery_server:
+            sets.append("network.discovery=server")
         try:
             resolved = cfg.resolve(config_path, sets)
         except cfg.ConfigRefused as e:
@@ -205,11 +208,18 @@ class Launcher:
                 resolved = cfg.resolve(config_path, sets)
             except cfg.ConfigRefused as e:
                 raise LaunchError(self._blame_fault(str(e), len(file_faults), extra))
-        self.cfg = resolved
-        self.faults = sorted(file_faults + extra, key=lambda f: f.step)
         self.n = int(resolved["agents"]["count"])
         self.steps = int(resolved["scenario"]["steps"])
         self.domain = int(resolved["network"]["domain_id"])
+        if discovery_server:
+            # One server per run: on host 1 with --hosts, else on the loopback; its port
+            # follows from the domain (as the address range does).
+            host_ip = f"10.211.{self.domain}.1" if hosts > 1 else "127.0.0.1"
+            self.discovery_server = (host_ip, 11811 + self.domain)
+            sets.append(f"network.discovery_server={host_ip}:{11811 + self.domain}")
+            resolved = cfg.resolve(config_path, sets)
+        self.cfg = resolved
+        self.faults = sorted(file_faults + extra, key=lambda f: f.step)
         self.realtime = resolved["scenario"]["mode"] == "realtime"
         self.partitions = sorted(partitions, key=lambda p: p.step)
         self.hosts_count = hosts
@@ -292,6 +302,14 @@ class Launcher:
             self.hosts = hosts_mod.Hosts(self.hosts_count, self.domain).create()
             for h in range(1, self.hosts_count + 1):
                 self.hosts.set_loss(h, self.loss)
+        if self.discovery_server:
+            ip, port = self.discovery_server
+            p = Proc("discovery_server", ["fastdds", "discovery", "-i", "0", "-l", ip, "-p", str(port)],
+                     host=1, log_path=os.path.join(self.out_dir, "logs", "discovery-server.log"))
+            self._spawn(p)
+            p.expected_death = True  # stopped by the launcher at the end
+            self.procs[p.name] = p
+            time.sleep(0.5)
         for j in range(1, self.n + 1):
             name = f"agent_{j}"
             p = Proc(name, self._argv("deif_agent", "--id", str(j)), self._host_of(name),
@@ -441,11 +459,17 @@ class Launcher:
                 p.healed_unix_s, p.healed_at_step = time.time(), self.current_step()
         # The agents finish on their own after the last step.
         agent_deadline = time.time() + 10.0 + float(self.cfg["network"]["step_timeout_s"])
+        server = self.procs.get("discovery_server")
         for name, p in self.procs.items():
+            if p is server:
+                continue
             if p.stopped and p.popen.poll() is None:
                 p.popen.send_signal(signal.SIGCONT)
                 p.stopped = False
             self._reap(p, max(0.1, agent_deadline - time.time()))
+        if server is not None:
+            server.popen.send_signal(signal.SIGTERM)
+            self._reap(server, 3.0)
         if self.progress:
             self.log.write("\n")
 
@@ -479,7 +503,7 @@ class Launcher:
         ok = self.interrupted is None
         for name, p in self.procs.items():
             status = p.exit_status
-            expected = status == 0 or (p.expected_death and status == -signal.SIGKILL)
+            expected = status == 0 or (p.expected_death and status in (-signal.SIGKILL, -signal.SIGTERM))
             ok = ok and expected
             procs.append({"name": name, "argv": p.argv, "host": p.host, "exit_status": status,
                           "signal": -status if status is not None and status < 0 else None,
