@@ -2,6 +2,7 @@
 // QoS"); the Fast DDS facts they rest on in docs/FASTDDS_NOTES.md.
 #include "dds/node.hpp"
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <condition_variable>
@@ -74,6 +75,32 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
   return {fdds::VOLATILE_DURABILITY_QOS, 1, 1, false};
 }
 
+// Liveliness and heartbeat traffic grow as N^2 (every writer to every matched reader). On a
+// busy host that traffic is what starves the processes, and starved processes look dead:
+// the effective timings are derived so that the whole network's liveliness assertions stay
+// within kLivelinessBudgetPerS messages per second, and a heartbeat is not sent more often
+// than kHeartbeatFloorPerAgentS per agent (docs/BENCHMARKS.md, large networks).
+constexpr double kLivelinessBudgetPerS = 4000.0;
+constexpr double kHeartbeatFloorPerAgentS = 0.0005;
+
+}  // namespace
+
+Timings EffectiveTimings(const Config& config) {
+  const NetworkConfig& net = config.network;
+  const double pairs = static_cast<double>(config.agents.count) * (config.agents.count + 1);
+  Timings t;
+  // At least one assertion per lease, and no more than the configured number or the budget.
+  t.liveliness_lease_s = std::max(net.liveliness_lease_s, pairs / kLivelinessBudgetPerS);
+  const double affordable = kLivelinessBudgetPerS * t.liveliness_lease_s / pairs;
+  t.assertions_per_lease =
+      std::max(1, std::min(net.liveliness_assertions_per_lease, static_cast<int>(affordable)));
+  t.heartbeat_period_s =
+      std::max(net.heartbeat_period_s, kHeartbeatFloorPerAgentS * config.agents.count);
+  return t;
+}
+
+namespace {
+
 template <typename Qos>
 void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config) {
   qos.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
@@ -90,9 +117,10 @@ void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config
   if (spec.manual_liveliness) {
     // AUTOMATIC liveliness does not detect a killed writer in Fast DDS 2.9.1.
     qos.liveliness().kind = fdds::MANUAL_BY_TOPIC_LIVELINESS_QOS;
-    qos.liveliness().lease_duration = DdsDuration(config.network.liveliness_lease_s);
-    qos.liveliness().announcement_period = DdsDuration(
-        config.network.liveliness_lease_s / config.network.liveliness_assertions_per_lease);
+    const Timings t = EffectiveTimings(config);
+    qos.liveliness().lease_duration = DdsDuration(t.liveliness_lease_s);
+    qos.liveliness().announcement_period =
+        DdsDuration(t.liveliness_lease_s / t.assertions_per_lease);
   }
   qos.data_sharing().off();
 }
@@ -104,7 +132,7 @@ fdds::DataWriterQos WriterQos(Topic topic, const Config& config) {
   // A lost sample is repaired one heartbeat later: Fast DDS's default (3 s) is far longer
   // than a step (docs/FASTDDS_NOTES.md). Heartbeats are sent only while samples are unacked.
   auto& times = qos.reliable_writer_qos().times;
-  times.heartbeatPeriod = DdsDuration(config.network.heartbeat_period_s);
+  times.heartbeatPeriod = DdsDuration(EffectiveTimings(config).heartbeat_period_s);
   times.nackResponseDelay = DdsDuration(config.network.nack_response_delay_s);
   times.nackSupressionDuration = Duration_t(0, 0);
   qos.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
@@ -372,7 +400,7 @@ void Node::StartLiveliness() {
   Impl& d = *impl_;
   if (d.asserter.joinable()) return;
   const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(
-      d.config.network.liveliness_lease_s / d.config.network.liveliness_assertions_per_lease));
+      EffectiveTimings(d.config).liveliness_lease_s / EffectiveTimings(d.config).assertions_per_lease));
   std::vector<fdds::DataWriter*> manual;
   for (auto& [topic, writer] : d.writers) {
     if (QosOf(topic, d.config.network).manual_liveliness) manual.push_back(writer);

@@ -87,6 +87,16 @@ class Node {
   std::unique_ptr<Impl> impl_;
 };
 
+// The timings a network of config.agents.count agents actually uses (dds/node.cpp): the
+// configured ones, unless the N^2 liveliness and heartbeat traffic would exceed what one
+// busy host can carry; then a longer lease, fewer assertions, a longer heartbeat.
+struct Timings {
+  double liveliness_lease_s = 0.0;
+  int assertions_per_lease = 1;
+  double heartbeat_period_s = 0.0;
+};
+Timings EffectiveTimings(const Config& config);
+
 // A steady_clock time point as seconds (the protocol's clock).
 inline double ToSeconds(Clock::time_point t) {
   return std::chrono::duration<double>(t.time_since_epoch()).count();
