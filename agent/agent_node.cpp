@@ -21,15 +21,6 @@ protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& cont
   return options;
 }
 
-void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text) {
-  switch (level) {
-    case protocol::LogLevel::kDebug: log.debug("{}", text); break;
-    case protocol::LogLevel::kInfo: log.info("{}", text); break;
-    case protocol::LogLevel::kWarn: log.warn("{}", text); break;
-    case protocol::LogLevel::kError: log.error("{}", text); break;
-  }
-}
-
 }  // namespace
 
 AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
@@ -62,6 +53,10 @@ bool AgentNode::AnotherProcessHasThisId() {
   while (!stop_requested_ && dds::Clock::now() < deadline) {
     for (dds::Event& event : node_.Wait(deadline)) {
       const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event);
+      if (state != nullptr && !Authorised(state->msg.agent_id, state->from)) {
+        early_events_.push_back(std::move(event));  // counted once the protocol runs
+        continue;
+      }
       if (state == nullptr) early_events_.push_back(std::move(event));
       if (state != nullptr && state->msg.agent_id == id_ &&
           state->msg.run == protocol::RunTokenOf(context_.run_name) &&
@@ -93,10 +88,7 @@ int AgentNode::Run() {
   context_.log->info("published the initial state; waiting for the target");
 
   while (!stop_requested_ && !protocol_.finished()) {
-    auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
-                                            std::chrono::duration<double>(kMaxWaitS));
-    if (const auto next = protocol_.NextDeadline()) deadline = std::min(deadline, dds::FromSeconds(*next));
-    const std::vector<dds::Event> events = node_.Wait(deadline);
+    const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
     for (const dds::Event& event : events) Dispatch(event, now_s);
     // Both ways: this agent hears every peer, and every peer hears this agent.
@@ -136,12 +128,24 @@ void AgentNode::WriteCounters() const {
       << counters.dump(2) << "\n";
 }
 
+bool AgentNode::Authorised(AgentId claimed, const protocol::SenderKey& writer) const {
+  return !node_.Secure() || node_.AuthorizedAgent(writer) == claimed;
+}
+
 void AgentNode::Dispatch(const dds::Event& event, double now_s) {
   if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
     protocol_.OnRange(range->msg, range->from, now_s);
   } else if (const auto* c = std::get_if<dds::Received<protocol::ContributionMsg>>(&event)) {
+    if (!Authorised(c->msg.agent_id, c->from)) {
+      protocol_.OnUnauthorised(c->msg.agent_id, c->from);
+      return;
+    }
     protocol_.OnContribution(c->msg, c->from, now_s);
   } else if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+    if (!Authorised(state->msg.agent_id, state->from)) {
+      protocol_.OnUnauthorised(state->msg.agent_id, state->from);
+      return;
+    }
     if (state->msg.instance_token != instance_token_ &&
         state->msg.run == protocol::RunTokenOf(context_.run_name)) {
       context_.log->warn("another process publishes states as agent {} (writer {}); its "
@@ -167,12 +171,10 @@ void AgentNode::Execute(std::vector<protocol::AgentAction> actions) {
             node_.Write(a.msg);
           } else if constexpr (std::is_same_v<A, act::WriteRow>) {
             if (csv_) csv_->Write(a.row);
-          } else if constexpr (std::is_same_v<A, act::Log>) {
-            LogAt(*context_.log, a.level, a.text);
-          } else if constexpr (std::is_same_v<A, act::Finish>) {
-            exit_code_ = a.exit_code;
-            LogAt(*context_.log, a.exit_code == 0 ? protocol::LogLevel::kInfo : protocol::LogLevel::kError,
-                  a.reason);
+          } else if constexpr (std::is_same_v<A, protocol::Log>) {
+            dds::Carry(a, *context_.log);
+          } else if constexpr (std::is_same_v<A, protocol::Finish>) {
+            dds::Carry(a, *context_.log, exit_code_);
           }
         },
         action);

@@ -16,6 +16,7 @@
 
 #include "common/protocol/agent_protocol.hpp"
 #include "common/protocol/messages.hpp"
+#include "dds/security.hpp"
 
 namespace deif::dds {
 
@@ -121,6 +122,34 @@ Config LoadProcessConfig(const ProcessOptions& options) {
 
 }  // namespace
 
+void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text) {
+  switch (level) {
+    case protocol::LogLevel::kDebug: log.debug("{}", text); break;
+    case protocol::LogLevel::kInfo: log.info("{}", text); break;
+    case protocol::LogLevel::kWarn: log.warn("{}", text); break;
+    case protocol::LogLevel::kError: log.error("{}", text); break;
+  }
+}
+
+void Carry(const protocol::Log& action, spdlog::logger& log) { LogAt(log, action.level, action.text); }
+
+void Carry(const protocol::Finish& action, spdlog::logger& log, std::optional<int>& exit_code) {
+  exit_code = action.exit_code;
+  LogAt(log, action.exit_code == 0 ? protocol::LogLevel::kInfo : protocol::LogLevel::kError,
+        action.reason);
+}
+
+std::chrono::steady_clock::time_point WakeBy(std::optional<double> deadline_s, double max_wait_s) {
+  using Clock = std::chrono::steady_clock;
+  auto wake = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(max_wait_s));
+  if (deadline_s) {
+    const auto deadline = Clock::time_point(std::chrono::duration_cast<Clock::duration>(
+        std::chrono::duration<double>(*deadline_s)));
+    wake = std::min(wake, deadline);
+  }
+  return wake;
+}
+
 void CheckRunName(const std::string& name) {
   const bool ok = !name.empty() && name.size() <= 64 &&
                   name.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz"
@@ -181,6 +210,15 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
   } catch (const std::exception& e) {  // ConfigError names file, key and line
     return fail(protocol::kExitBadConfig, e.what());
   }
+  if (context.config.network.security.enabled) {
+    // This process's certificate, key and permissions (docs/SECURITY.md), before anything
+    // starts: Fast DDS would only fail to create the participant, or never match a peer.
+    try {
+      CheckSecurityFiles(FilesOf(context.config.network.security.dir, spec.logger_name()));
+    } catch (const SecurityError& e) {
+      return fail(protocol::kExitBadConfig, std::string("security: ") + e.what());
+    }
+  }
   context.run_name = options.run_name.empty() ? DefaultRunName(context.config) : options.run_name;
 
   context.log = MakeLogger(spec.logger_name(), options.log_dir);
@@ -197,6 +235,8 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     return code;
   } catch (const ConfigError& e) {
     return fail(protocol::kExitBadConfig, e.what());
+  } catch (const SecurityError& e) {
+    return fail(protocol::kExitBadConfig, std::string("security: ") + e.what());
   } catch (const std::exception& e) {
     context.log->critical("{}", e.what());
     return fail(protocol::kExitRuntimeError, e.what());

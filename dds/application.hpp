@@ -3,6 +3,7 @@
 // wired to Stop(), and errors mapped to one line and an exit code (docs/RUNNING.md).
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -14,6 +15,7 @@
 #include <spdlog/logger.h>
 
 #include "common/config/config.hpp"
+#include "common/protocol/agent_protocol.hpp"
 
 namespace deif::dds {
 
@@ -51,7 +53,8 @@ struct ProcessSpec {
   const char* description;
   // Adds the executable's own options.
   std::function<void(CLI::App&)> add_options;
-  // The logger's (and log file's) name, e.g. "agent-3".
+  // The logger's (and log file's) name, e.g. "agent-3"; also the DDS participant's name,
+  // by which it finds its security files (docs/SECURITY.md).
   std::function<std::string()> logger_name;
   // Checks the executable's own options against the config; throws ConfigError.
   std::function<void(const Config&)> check;
@@ -63,6 +66,17 @@ struct ProcessSpec {
 // config prints `<program>: error: <file>:<line>: key '<key>': <reason>` and returns 2),
 // runs, and maps exceptions to exit code 1 with one line.
 int RunMain(int argc, char** argv, const ProcessSpec& spec);
+
+// A protocol's log line, at its level, through the process logger.
+void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);
+// The actions both protocols produce: a log line; the end of the process (its exit code is
+// kept for Run() to return).
+void Carry(const protocol::Log& action, spdlog::logger& log);
+void Carry(const protocol::Finish& action, spdlog::logger& log, std::optional<int>& exit_code);
+
+// When an application's event loop should wake: at the protocol's next deadline, and at
+// least every max_wait_s (to notice a stop request).
+std::chrono::steady_clock::time_point WakeBy(std::optional<double> deadline_s, double max_wait_s);
 
 // The run name when --run is not given: derived from the effective config, so processes
 // started by hand with the same config (and seed) find each other and no others.

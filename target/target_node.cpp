@@ -17,15 +17,6 @@ namespace {
 
 constexpr double kMaxWaitS = 0.5;
 
-void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text) {
-  switch (level) {
-    case protocol::LogLevel::kDebug: log.debug("{}", text); break;
-    case protocol::LogLevel::kInfo: log.info("{}", text); break;
-    case protocol::LogLevel::kWarn: log.warn("{}", text); break;
-    case protocol::LogLevel::kError: log.error("{}", text); break;
-  }
-}
-
 protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
                                                   const TargetOptions& options) {
   protocol::TargetProtocol::Options out;
@@ -114,10 +105,7 @@ int TargetNode::Run() {
   early_events_.clear();
   Execute(protocol_.TakeActions());
   while (!stop_requested_ && !protocol_.finished()) {
-    auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
-                                            std::chrono::duration<double>(kMaxWaitS));
-    if (const auto next = protocol_.NextDeadline()) deadline = std::min(deadline, dds::FromSeconds(*next));
-    const std::vector<dds::Event> events = node_.Wait(deadline);
+    const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
     for (const dds::Event& event : events) Dispatch(event, now_s);
     std::deque<StepIndex> go;
@@ -148,6 +136,11 @@ int TargetNode::Run() {
 
 void TargetNode::Dispatch(const dds::Event& event, double now_s) {
   if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+    // With security, only agent J's own writer may speak for J (docs/SECURITY.md).
+    if (node_.Secure() && node_.AuthorizedAgent(state->from) != state->msg.agent_id) {
+      protocol_.OnUnauthorised(state->msg.agent_id, state->from);
+      return;
+    }
     protocol_.OnState(state->msg, state->from, now_s);
   } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
     if (change->topic == dds::Topic::kAgentState) {
@@ -173,12 +166,10 @@ void TargetNode::Execute(std::vector<protocol::TargetAction> actions) {
           } else if constexpr (std::is_same_v<A, act::Hold>) {
             std::printf("hold %lld %s\n", static_cast<long long>(a.step), a.faults.c_str());
             std::fflush(stdout);
-          } else if constexpr (std::is_same_v<A, act::Log>) {
-            LogAt(*context_.log, a.level, a.text);
-          } else if constexpr (std::is_same_v<A, act::Finish>) {
-            exit_code_ = a.exit_code;
-            LogAt(*context_.log, a.exit_code == 0 ? protocol::LogLevel::kInfo : protocol::LogLevel::kError,
-                  a.reason);
+          } else if constexpr (std::is_same_v<A, protocol::Log>) {
+            dds::Carry(a, *context_.log);
+          } else if constexpr (std::is_same_v<A, protocol::Finish>) {
+            dds::Carry(a, *context_.log, exit_code_);
           }
         },
         action);

@@ -54,7 +54,19 @@ struct AgentCounters {
   std::map<std::string, std::int64_t> by_reason;  // "rejected: not_psd" -> count
 };
 
+// Actions both protocols produce.
+struct Log {
+  LogLevel level;
+  std::string text;
+};
+struct Finish {  // the process is done (its exit code and why)
+  int exit_code;
+  std::string reason;
+};
+
 namespace agent_action {
+using protocol::Finish;
+using protocol::Log;
 struct PublishContribution {
   ContributionMsg msg;
 };
@@ -63,14 +75,6 @@ struct PublishState {
 };
 struct WriteRow {
   AgentRow row;
-};
-struct Log {
-  LogLevel level;
-  std::string text;
-};
-struct Finish {
-  int exit_code;
-  std::string reason;
 };
 }  // namespace agent_action
 
@@ -102,6 +106,10 @@ class AgentProtocol {
   // first step it is republished in the initial state, so the target can start only when
   // every agent can hear every other (docs/PROTOCOL.md, "Start").
   void OnPeersMatched(int matched, double now_s);
+  // The transport knows that the writer `from` may not speak for the agent id `claimed`
+  // (with DDS Security its permissions name another id: docs/SECURITY.md): the message is
+  // counted as rejected, reason not_authorised, and never used.
+  void OnUnauthorised(AgentId claimed, const SenderKey& from);
 
   // When OnTimer should next be called (nullopt: only events can move the protocol on).
   std::optional<double> NextDeadline() const;

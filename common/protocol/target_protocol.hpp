@@ -39,14 +39,8 @@ struct Hold {
   StepIndex step;
   std::string faults;  // e.g. "kill agent 3"
 };
-struct Log {
-  LogLevel level;
-  std::string text;
-};
-struct Finish {
-  int exit_code;
-  std::string reason;
-};
+using protocol::Finish;
+using protocol::Log;
 }  // namespace target_action
 
 using TargetAction =
@@ -69,6 +63,9 @@ class TargetProtocol {
   void OnState(const StateMsg& msg, const SenderKey& from, double now_s);
   // An agent's state writer's liveliness changed.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // The transport knows that the writer `from` may not speak for the agent id `claimed`
+  // (docs/SECURITY.md): its state is counted as rejected, reason not_authorised, unused.
+  void OnUnauthorised(AgentId claimed, const SenderKey& from);
   // The faults of a held step were applied.
   void OnGo(StepIndex step, double now_s);
   void OnTimer(double now_s);
@@ -113,7 +110,6 @@ class TargetProtocol {
   StepIndex step_ = 0;          // the step published last
   double step_start_s_ = 0.0;   // when it was published (lock-step) / its tick (real time)
   double hold_deadline_s_ = 0.0;
-  std::size_t seen_agents_ = 0;
   std::map<AgentId, Agent> agents_;
   std::map<SenderKey, AgentId> writer_ids_;
   std::set<SenderKey> alive_writers_;
