@@ -1,4 +1,4 @@
-// The run artefacts: exact headers from DESIGN.md, rows flushed as written, and numbers
+// The run artefacts (docs/ARTEFACTS.md): exact headers, rows flushed as written, and numbers
 // that read back to the same doubles.
 #include <catch2/catch.hpp>
 
