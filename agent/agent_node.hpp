@@ -26,6 +26,9 @@ class AgentNode : public dds::Application {
   // Another live process with this id (its state, with another instance token) refuses us.
   bool AnotherProcessHasThisId();
   void Dispatch(const dds::Event& event, double now_s);
+  // Whether `writer` may speak for agent `claimed`: always without security; with it, only
+  // when its permissions name that id (docs/SECURITY.md).
+  bool Authorised(AgentId claimed, const protocol::SenderKey& writer) const;
   void Execute(std::vector<protocol::AgentAction> actions);
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
   void WriteCounters() const;

@@ -19,6 +19,7 @@
 #include <fastdds/dds/core/condition/WaitSet.hpp>
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/domain/DomainParticipantListener.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
 #include <fastdds/dds/subscriber/DataReader.hpp>
@@ -35,6 +36,7 @@
 #include <fastrtps/utils/IPLocator.h>
 
 #include "dds/conversions.hpp"
+#include "dds/security.hpp"
 #include "deifPubSubTypes.h"
 
 namespace deif::dds {
@@ -185,6 +187,53 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
   return qos;
 }
 
+// ---- DDS Security (dds/security.hpp, docs/SECURITY.md), kept apart from the transport and
+// discovery settings above.
+
+// Switches the builtin security plugins on with the files of participant `name`, once they
+// passed the checks (SecurityError names a bad file).
+void ApplySecurity(fdds::DomainParticipantQos& qos, const Config& config, const std::string& name) {
+  const SecurityFiles files = FilesOf(config.network.security.dir, name);
+  CheckSecurityFiles(files);
+  for (const auto& [key, value] : SecurityProperties(files)) {
+    qos.properties().properties().emplace_back(key, value);
+  }
+}
+
+// The partitions of every remote writer as first discovered. Fast DDS calls
+// on_publisher_discovery before it matches the writer with any reader, so the binding exists
+// before a sample can arrive. A writer announced again with other partitions is revoked:
+// Fast DDS checks the permissions again but keeps an existing match, and a writer first
+// announced in a partition its permissions refuse was never matched on it.
+class WriterPartitions final : public fdds::DomainParticipantListener {
+ public:
+  void on_publisher_discovery(fdds::DomainParticipant*,
+                              eprosima::fastrtps::rtps::WriterDiscoveryInfo&& info) override {
+    using Info = eprosima::fastrtps::rtps::WriterDiscoveryInfo;
+    if (info.status == Info::REMOVED_WRITER) return;  // kept: the same writer may come back
+    const std::vector<std::string> names = info.info.m_qos.m_partition.getNames();
+    const protocol::SenderKey key = ToKey(fdds::InstanceHandle_t(info.info.guid()));
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto [it, first] = bindings_.try_emplace(key, Binding{names, false});
+    if (!first && it->second.partitions != names) it->second.revoked = true;
+  }
+  // The partitions `writer` was bound to; nullopt if unknown or revoked.
+  std::optional<std::vector<std::string>> Of(const protocol::SenderKey& writer) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = bindings_.find(writer);
+    if (it == bindings_.end() || it->second.revoked) return std::nullopt;
+    return it->second.partitions;
+  }
+
+ private:
+  struct Binding {
+    std::vector<std::string> partitions;
+    bool revoked = false;
+  };
+  mutable std::mutex mutex_;
+  std::map<protocol::SenderKey, Binding> bindings_;
+};
+
 // A content filter on the key, "agent_id = %0", that reads the id straight from the
 // serialized sample: every keyed type of idl/deif.idl starts with its key, a 32-bit
 // agent_id, right after the 4-byte encapsulation header. (Fast DDS's SQL filter would need
@@ -268,6 +317,8 @@ struct Node::Impl {
   std::map<Topic, fdds::DataReader*> readers;
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   std::set<protocol::SenderKey> own_writers;
+  bool secure = false;   // network.security.enabled
+  WriterPartitions writer_partitions;  // the participant's listener when secure
   AgentIdFilterFactory filter_factory;  // registered with the participant
   fdds::WaitSet waitset;
   fdds::GuardCondition guard;
@@ -289,11 +340,23 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
     : impl_(std::make_unique<Impl>(config)) {
   Impl& d = *impl_;
   d.run_name = run_name;
-  d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
-      config.network.domain_id, ParticipantQos(config, participant_name));
+  d.secure = config.network.security.enabled;
+  if (d.secure) {
+    fdds::DomainParticipantQos qos = ParticipantQos(config, participant_name);
+    ApplySecurity(qos, config, participant_name);
+    // No status through this listener (StatusMask::none): only discovery callbacks.
+    d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
+        config.network.domain_id, qos, &d.writer_partitions, fdds::StatusMask::none());
+  } else {
+    d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
+        config.network.domain_id, ParticipantQos(config, participant_name));
+  }
   if (d.participant == nullptr) {
     throw std::runtime_error("cannot create a DDS participant on domain " +
-                             std::to_string(config.network.domain_id));
+                             std::to_string(config.network.domain_id) +
+                             (d.secure ? " with the security files of '" + participant_name +
+                                             "' (does the governance cover this domain?)"
+                                       : std::string()));
   }
   if (d.participant->register_content_filter_factory(kAgentIdFilterClass, &d.filter_factory) !=
       ReturnCode_t::RETCODE_OK) {
@@ -323,8 +386,12 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
   fdds::PublisherQos publisher_qos = fdds::PUBLISHER_QOS_DEFAULT;
   fdds::SubscriberQos subscriber_qos = fdds::SUBSCRIBER_QOS_DEFAULT;
   if (!ros2) {
-    publisher_qos.partition().push_back(("deif." + run_name).c_str());
-    subscriber_qos.partition().push_back(("deif." + run_name).c_str());
+    // With security each publisher's partition names its role (docs/SECURITY.md).
+    const std::string published =
+        d.secure ? PublisherPartition(run_name, participant_name) : "deif." + run_name;
+    const std::string subscribed = d.secure ? SubscriberPartition(run_name) : "deif." + run_name;
+    publisher_qos.partition().push_back(published.c_str());
+    subscriber_qos.partition().push_back(subscribed.c_str());
   }
   d.publisher = d.participant->create_publisher(publisher_qos);
   d.subscriber = d.participant->create_subscriber(subscriber_qos);
@@ -490,6 +557,15 @@ bool Node::WaitForAcknowledgments(double seconds) {
     all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
   }
   return all;
+}
+
+bool Node::Secure() const { return impl_->secure; }
+
+std::optional<AgentId> Node::AuthorizedAgent(const protocol::SenderKey& writer) const {
+  if (!impl_->secure) return std::nullopt;
+  const auto partitions = impl_->writer_partitions.Of(writer);
+  if (!partitions) return std::nullopt;
+  return AuthorizedAgentOf(*partitions, impl_->run_name);
 }
 
 protocol::SenderKey Node::WriterKey(Topic topic) const {

@@ -74,6 +74,14 @@ class Node {
 
   // Waits (bounded) until every matched reader acknowledged this node's samples.
   bool WaitForAcknowledgments(double seconds);
+  // Whether network.security.enabled (docs/SECURITY.md).
+  bool Secure() const;
+  // With security: the agent id the remote `writer` may speak for, the J of the partition
+  // deif.<run>.agent.<J> it publishes in, which the CA-signed permissions of its participant
+  // must allow before any reader here matches it. Bound at the writer's discovery; nullopt
+  // for good once it announces other partitions. nullopt for the target, an observer, an
+  // unknown writer, and without security.
+  std::optional<AgentId> AuthorizedAgent(const protocol::SenderKey& writer) const;
   // This node's writer of `topic` as peers see it.
   protocol::SenderKey WriterKey(Topic topic) const;
   // How many writers currently match this node's reader of `topic` (its own included).

@@ -40,7 +40,22 @@ std::string BuildMessage(const std::string& file, const std::string& key, int li
   message += ": ";
   if (!key.empty()) message += "key '" + key + "': ";
   message += reason;
-  return message;
+  // One line, whatever the file name, an override or a quoted value held: control
+  // characters are shown escaped (docs/RUNNING.md: one line on stderr).
+  std::string line_only;
+  for (const char ch : message) {
+    const auto byte = static_cast<unsigned char>(ch);
+    if (ch == '\n') {
+      line_only += "\\n";
+    } else if (byte < 0x20 || byte == 0x7F) {
+      char escaped[8];
+      std::snprintf(escaped, sizeof escaped, "\\x%02X", static_cast<unsigned>(byte));
+      line_only += escaped;
+    } else {
+      line_only += ch;
+    }
+  }
+  return line_only;
 }
 
 [[noreturn]] void Fail(const DocNode& node, const std::string& key, const std::string& reason) {
@@ -478,6 +493,16 @@ class Rules {
                 FormatNumber(n.participant_announcement_s) + " >= " +
                 FormatNumber(n.participant_lease_s) + ")");
     }
+    if (n.security.enabled && n.security.dir.empty()) {
+      Blame({"network.security.dir", "network.security.enabled"},
+            "security.enabled needs the folder of the certificates (scripts/deif-certs)");
+    }
+    if (n.security.enabled && n.ros2_naming) {
+      // Each process's role is its publisher's partition (docs/SECURITY.md); ROS 2 naming
+      // publishes in the default partition.
+      Blame({"network.security.enabled", "network.ros2_naming"},
+            "security.enabled needs ros2_naming: false");
+    }
   }
 
   void StepWithinRun(const std::string& key, StepIndex step) const {
@@ -609,6 +634,33 @@ void CheckTopLevel(const DocNode& root) {
   }
 }
 
+// A section's mapping, or a mapping nested in it (network.security): its keys must be the
+// first components of `names`, the key names below it (dotted ones name nested mappings).
+void CheckKeys(const DocNode& node, const std::string& path, const std::vector<std::string>& names) {
+  std::vector<std::string> heads;
+  std::map<std::string, std::vector<std::string>> nested;
+  for (const std::string& name : names) {
+    const std::size_t dot = name.find('.');
+    const std::string head = name.substr(0, dot);
+    if (std::find(heads.begin(), heads.end(), head) == heads.end()) heads.push_back(head);
+    if (dot != std::string::npos) nested[head].push_back(name.substr(dot + 1));
+  }
+  CheckMapping(node, path, heads, "a mapping of keys");
+  for (const auto& [head, rest] : nested) {
+    const DocNode* child = node.IsMap() ? node.Find(head) : nullptr;
+    if (child != nullptr) CheckKeys(*child, path + "." + head, rest);
+  }
+}
+
+const DocNode* FindKeyNode(const DocNode& root, const KeySpec& spec) {
+  const DocNode* node = &root;
+  for (const std::string& part : KeyPath(spec)) {
+    node = node->Find(part);
+    if (node == nullptr) return nullptr;
+  }
+  return node;
+}
+
 Config ParseTree(const DocNode& root, const std::string& source_name) {
   CheckTopLevel(root);
   std::vector<std::string> top;
@@ -616,9 +668,7 @@ Config ParseTree(const DocNode& root, const std::string& source_name) {
   CheckMapping(root, "", top, "a mapping");
   for (const SectionSpec& section : Sections()) {
     const DocNode* node = root.Find(section.name);
-    if (node != nullptr && !section.is_key) {
-      CheckMapping(*node, section.name, Names(section.keys), "a mapping of keys");
-    }
+    if (node != nullptr && !section.is_key) CheckKeys(*node, section.name, Names(section.keys));
   }
 
   Config config;
@@ -626,8 +676,7 @@ Config ParseTree(const DocNode& root, const std::string& source_name) {
   ApplyDefaults(Schema(), &config);
   Locations at;
   for (const KeySpec& spec : Schema()) {
-    const DocNode* node = root.Find(spec.section.empty() ? spec.name : spec.section);
-    if (node != nullptr && !spec.section.empty()) node = node->Find(spec.name);
+    const DocNode* node = FindKeyNode(root, spec);
     if (node == nullptr) continue;
     if (spec.type == KeyType::kRecordList) {
       ReadRecords(spec, *node, spec.key, &config, &at);
@@ -754,6 +803,34 @@ void DropStaleAngles(DocNode* root, const std::vector<Override>& overrides) {
                 entries.end());
 }
 
+// The keys of a section (or of a mapping nested in it) as a mapping, in schema order; a
+// dotted name ("security.enabled") opens a nested mapping.
+void EmitKeys(YAML::Emitter& out, const std::vector<std::pair<std::string, const KeySpec*>>& keys,
+              const Config& config) {
+  out << YAML::BeginMap;
+  std::vector<std::string> done;
+  for (const auto& [name, spec] : keys) {
+    const std::size_t dot = name.find('.');
+    if (dot == std::string::npos) {
+      out << YAML::Key << name << YAML::Value;
+      EmitKeyValue(out, *spec, &config, /*flow=*/false);
+      continue;
+    }
+    const std::string head = name.substr(0, dot);
+    if (std::find(done.begin(), done.end(), head) != done.end()) continue;
+    done.push_back(head);
+    std::vector<std::pair<std::string, const KeySpec*>> nested;
+    for (const auto& [other, other_spec] : keys) {
+      if (other.compare(0, head.size() + 1, head + ".") == 0) {
+        nested.emplace_back(other.substr(head.size() + 1), other_spec);
+      }
+    }
+    out << YAML::Key << head << YAML::Value;
+    EmitKeys(out, nested, config);
+  }
+  out << YAML::EndMap;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -811,12 +888,9 @@ std::string ToYaml(const Config& config) {
       EmitKeyValue(out, *section.keys.front(), &config, /*flow=*/false);
       continue;
     }
-    out << YAML::BeginMap;
-    for (const KeySpec* spec : section.keys) {
-      out << YAML::Key << spec->name << YAML::Value;
-      EmitKeyValue(out, *spec, &config, /*flow=*/false);
-    }
-    out << YAML::EndMap;
+    std::vector<std::pair<std::string, const KeySpec*>> keys;
+    for (const KeySpec* spec : section.keys) keys.emplace_back(spec->name, spec);
+    EmitKeys(out, keys, config);
   }
   out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";

@@ -75,6 +75,12 @@ enum class DiscoveryKind { kSimple, kServer };
 // Which Fast DDS transport carries the data (docs/ARCHITECTURE.md, transport).
 enum class TransportKind { kUdp, kShm };
 
+// DDS Security (docs/SECURITY.md): authentication, access control and encryption.
+struct SecurityConfig {
+  bool enabled = false;
+  std::string dir;  // ca.pem, governance.p7s, <name>.cert.pem, <name>.key.pem, <name>.permissions.p7s
+};
+
 struct NetworkConfig {
   int domain_id = 0;
   double liveliness_lease_s = 0.4;   // agent writers' MANUAL_BY_TOPIC lease [s]
@@ -93,6 +99,7 @@ struct NetworkConfig {
   DiscoveryKind discovery = DiscoveryKind::kSimple;
   std::string discovery_server = "127.0.0.1:11811";  // host:port, with discovery: server
   bool ros2_naming = false;          // rt/deif/... topics and ROS 2 type names
+  SecurityConfig security;
 };
 
 // A partition of the simulated network: during steps [from_step, to_step] the agents of

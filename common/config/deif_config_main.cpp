@@ -90,11 +90,10 @@ Json ConfigJson(const deif::Config& config) {
   Json out = Json::object();
   deif::VisitConfig(config, [&](const deif::KeySpec& spec, const std::string& yaml) {
     const Json value = ToJson(spec, deif::ReadDocument(yaml, spec.key));
-    if (spec.section.empty()) {
-      out[spec.name] = value;
-    } else {
-      out[spec.section][spec.name] = value;
-    }
+    const std::vector<std::string> path = deif::KeyPath(spec);  // nested: network.security
+    Json* node = &out;
+    for (std::size_t i = 0; i + 1 < path.size(); ++i) node = &(*node)[path[i]];
+    (*node)[path.back()] = value;
   });
   return out;
 }

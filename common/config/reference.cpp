@@ -1,6 +1,8 @@
 #include "common/config/reference.hpp"
 
+#include <algorithm>
 #include <sstream>
+#include <utility>
 #include <vector>
 
 #include "common/config/schema.hpp"
@@ -65,6 +67,40 @@ std::string Facts(const KeySpec& spec) {
   return facts;
 }
 
+// The keys of a section at `indent`; a dotted name ("security.enabled") opens a nested
+// mapping.
+void YamlKeys(std::ostringstream& out, const std::vector<std::pair<std::string, const KeySpec*>>& keys,
+              const std::string& indent) {
+  std::vector<std::string> done;
+  for (const auto& [name, spec] : keys) {
+    const std::size_t dot = name.find('.');
+    if (dot == std::string::npos) {
+      Comment(out, indent + "# ", spec->description);
+      if (spec->type == KeyType::kRecordList) {
+        Comment(out, indent + "# ", Facts(*spec) + ". Each element:");
+        for (const KeySpec& field : spec->fields) {
+          Comment(out, indent + "#   ", field.name + " (" + Facts(field) + "): " + field.description);
+        }
+      } else {
+        Comment(out, indent + "# ", Facts(*spec));
+      }
+      out << indent << name << ": " << spec->default_yaml << "\n";
+      continue;
+    }
+    const std::string head = name.substr(0, dot);
+    if (std::find(done.begin(), done.end(), head) != done.end()) continue;
+    done.push_back(head);
+    std::vector<std::pair<std::string, const KeySpec*>> nested;
+    for (const auto& [other, other_spec] : keys) {
+      if (other.compare(0, head.size() + 1, head + ".") == 0) {
+        nested.emplace_back(other.substr(head.size() + 1), other_spec);
+      }
+    }
+    out << indent << head << ":\n";
+    YamlKeys(out, nested, indent + "  ");
+  }
+}
+
 }  // namespace
 
 std::string RenderMarkdownReference() {
@@ -104,18 +140,9 @@ std::string RenderReferenceYaml() {
       continue;
     }
     out << section.name << ":\n";
-    for (const KeySpec* spec : section.keys) {
-      Comment(out, "  # ", spec->description);
-      if (spec->type == KeyType::kRecordList) {
-        Comment(out, "  # ", Facts(*spec) + ". Each element:");
-        for (const KeySpec& field : spec->fields) {
-          Comment(out, "  #   ", field.name + " (" + Facts(field) + "): " + field.description);
-        }
-      } else {
-        Comment(out, "  # ", Facts(*spec));
-      }
-      out << "  " << spec->name << ": " << spec->default_yaml << "\n";
-    }
+    std::vector<std::pair<std::string, const KeySpec*>> keys;
+    for (const KeySpec* spec : section.keys) keys.emplace_back(spec->name, spec);
+    YamlKeys(out, keys, "  ");
   }
   return out.str();
 }

@@ -570,6 +570,21 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Default(false)
       .Doc("Publish on rt/deif/... with ROS 2 type names, so that ROS 2 tools see the "
            "network.");
+  t.Add("security.enabled", [](Config& c) -> auto& { return c.network.security.enabled; })
+      .Default(false)
+      .Note("needs ros2_naming: false")
+      .Doc("DDS Security (docs/SECURITY.md): every participant proves a certificate of the "
+           "network's CA (PKI-DH), may publish only its own topics as its own id "
+           "(Access-Permissions) and encrypts what it sends (AES-GCM-GMAC). A process without "
+           "valid certificates sees nothing and is not heard.");
+  t.Add("security.dir", [](Config& c) -> auto& { return c.network.security.dir; })
+      .Default("")
+      .Length(0, 4096)
+      .Note("required with security.enabled")
+      .Doc("Folder with ca.pem, governance.p7s and, per process, <name>.cert.pem, "
+           "<name>.key.pem and <name>.permissions.p7s, where name is target, agent-<id> or "
+           "observer-<m> (scripts/deif-certs writes them). Relative to the working directory. "
+           "A bad or missing file stops the process at start (exit 2).");
 }
 
 void AddNetworkSim(std::vector<KeySpec>* keys) {
@@ -911,6 +926,18 @@ const KeySpec* FindKey(std::string_view key) {
     }
   }
   return nullptr;
+}
+
+std::vector<std::string> KeyPath(const KeySpec& spec) {
+  std::vector<std::string> path;
+  if (!spec.section.empty()) path.push_back(spec.section);
+  for (std::size_t start = 0;;) {
+    const std::size_t dot = spec.name.find('.', start);
+    path.push_back(spec.name.substr(start, dot - start));
+    if (dot == std::string::npos) break;
+    start = dot + 1;
+  }
+  return path;
 }
 
 void VisitConfig(const Config& config,

@@ -80,6 +80,10 @@ const std::vector<KeySpec>& Schema();
 const std::vector<SectionSpec>& Sections();
 // A key by its dotted name ("agents.count", "faults", "faults[].step"), or nullptr.
 const KeySpec* FindKey(std::string_view key);
+// Where a key sits in a document: {"agents", "count"}, {"faults"}. A key's name may itself
+// be dotted ("security.enabled"): a mapping nested in its section, {"network", "security",
+// "enabled"}.
+std::vector<std::string> KeyPath(const KeySpec& spec);
 
 // Calls visit(spec, yaml) for every key of Schema(), in order, with the key's effective
 // value in `config` as YAML text on one line (flow style for points, lists and records;

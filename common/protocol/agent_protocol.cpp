@@ -752,6 +752,11 @@ bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& 
   return true;
 }
 
+void AgentProtocol::OnUnauthorised(AgentId claimed, const SenderKey& from) {
+  if (finished_) return;
+  Reject("agent " + std::to_string(claimed) + " (writer " + ToString(from) + ")", "not_authorised");
+}
+
 void AgentProtocol::Reject(const std::string& who, const std::string& reason) {
   ++counters_.rejected;
   ++counters_.by_reason["rejected: " + reason];

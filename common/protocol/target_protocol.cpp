@@ -323,6 +323,11 @@ void TargetProtocol::PublishStep(StepIndex k) {
   }
 }
 
+void TargetProtocol::OnUnauthorised(AgentId claimed, const SenderKey& from) {
+  if (phase_ == Phase::kDone) return;
+  Reject("agent " + std::to_string(claimed) + " (writer " + ToString(from) + ")", "not_authorised");
+}
+
 void TargetProtocol::Reject(const std::string& who, const std::string& reason) {
   ++rejected_["rejected: " + reason];
   if (logged_once_.insert(who + "|" + reason).second) {

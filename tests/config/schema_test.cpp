@@ -37,10 +37,14 @@ std::vector<std::string> ShippedConfigs() {
   return paths;
 }
 
-// The value of the dotted key (section.name, or a top-level name) in a document, or nullptr.
+// The value of the dotted key (section.name, section.nested.name, or a top-level name) in a
+// document, or nullptr.
 const deif::DocNode* Lookup(const deif::DocNode& root, const KeySpec& spec) {
-  const deif::DocNode* node = root.Find(spec.section.empty() ? spec.name : spec.section);
-  if (node != nullptr && !spec.section.empty()) node = node->Find(spec.name);
+  const deif::DocNode* node = &root;
+  for (const std::string& part : deif::KeyPath(spec)) {
+    node = node->Find(part);
+    if (node == nullptr) return nullptr;
+  }
   return node;
 }
 
