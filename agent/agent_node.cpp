@@ -35,6 +35,11 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
   node_.AddReader({dds::Topic::kContribution, {}});
   node_.AddReader({dds::Topic::kAgentState, id_});   // only states claiming this id: duplicates
+  if (node_.AuthenticationRestarts() > 0) {
+    context_.log->warn("authentication with a peer stalled at start; participant created anew {} "
+                       "time(s) (docs/SECURITY.md, \"Start-up\")",
+                       node_.AuthenticationRestarts());
+  }
   context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
                      config_.network.domain_id, instance_token_);
 }

@@ -200,13 +200,23 @@ void ApplySecurity(fdds::DomainParticipantQos& qos, const Config& config, const 
   }
 }
 
-// The partitions of every remote writer as first discovered. Fast DDS calls
-// on_publisher_discovery before it matches the writer with any reader, so the binding exists
-// before a sample can arrive. A writer announced again with other partitions is revoked:
-// Fast DDS checks the permissions again but keeps an existing match, and a writer first
-// announced in a partition its permissions refuse was never matched on it.
-class WriterPartitions final : public fdds::DomainParticipantListener {
+// The participant listener of a secure node: the partitions of every remote writer as
+// first discovered, and where the authentication with every remote participant stands.
+//
+// Partitions: Fast DDS calls on_publisher_discovery before it matches the writer with any
+// reader, so the binding exists before a sample can arrive. A writer announced again with
+// other partitions is revoked: Fast DDS checks the permissions again but keeps an existing
+// match, and a writer first announced in a partition its permissions refuse was never
+// matched on it.
+//
+// Authentication: Fast DDS 2.9.1 can leave the handshake with a remote participant stalled
+// for good when it discovers two new participants at once on two receive threads (shared
+// scratch data in its security manager, docs/FASTDDS_NOTES.md). Neither side then reports an
+// outcome; Node recreates its participant when it sees one (AwaitAuthentication).
+class SecureListener final : public fdds::DomainParticipantListener {
  public:
+  using Guid = eprosima::fastrtps::rtps::GUID_t;
+
   void on_publisher_discovery(fdds::DomainParticipant*,
                               eprosima::fastrtps::rtps::WriterDiscoveryInfo&& info) override {
     using Info = eprosima::fastrtps::rtps::WriterDiscoveryInfo;
@@ -217,6 +227,32 @@ class WriterPartitions final : public fdds::DomainParticipantListener {
     const auto [it, first] = bindings_.try_emplace(key, Binding{names, false});
     if (!first && it->second.partitions != names) it->second.revoked = true;
   }
+
+  void on_participant_discovery(fdds::DomainParticipant*,
+                                eprosima::fastrtps::rtps::ParticipantDiscoveryInfo&& info) override {
+    using Info = eprosima::fastrtps::rtps::ParticipantDiscoveryInfo;
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (info.status == Info::DISCOVERED_PARTICIPANT) {
+      Peer& peer = peers_[info.info.m_guid];
+      if (!peer.seen) peer.discovered = Clock::now();
+      peer.seen = true;
+      peer.gone = false;
+      last_discovery_ = Clock::now();
+    } else if (info.status == Info::REMOVED_PARTICIPANT ||
+               info.status == Info::DROPPED_PARTICIPANT) {
+      peers_[info.info.m_guid].gone = true;
+    }
+  }
+
+  void onParticipantAuthentication(fdds::DomainParticipant*,
+                                   eprosima::fastrtps::rtps::ParticipantAuthenticationInfo&& info) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Peer& peer = peers_[info.guid];
+    if (!peer.seen) peer.discovered = Clock::now();
+    peer.seen = true;
+    peer.settled = true;  // authorised or refused: either way an outcome
+  }
+
   // The partitions `writer` was bound to; nullopt if unknown or revoked.
   std::optional<std::vector<std::string>> Of(const protocol::SenderKey& writer) const {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -225,13 +261,45 @@ class WriterPartitions final : public fdds::DomainParticipantListener {
     return it->second.partitions;
   }
 
+  struct Progress {
+    int stalled = 0;    // discovered longer than `stall` ago, no outcome yet
+    int pending = 0;    // discovered, no outcome yet
+    Clock::time_point last_discovery{};
+  };
+  Progress Check(Clock::duration stall) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Progress p;
+    p.last_discovery = last_discovery_;
+    const auto now = Clock::now();
+    for (const auto& [guid, peer] : peers_) {
+      if (!peer.seen || peer.settled || peer.gone) continue;
+      ++p.pending;
+      if (now - peer.discovered > stall) ++p.stalled;
+    }
+    return p;
+  }
+  // Forgets the participants (a new local participant authenticates afresh).
+  void ResetPeers() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    peers_.clear();
+    last_discovery_ = Clock::time_point{};
+  }
+
  private:
   struct Binding {
     std::vector<std::string> partitions;
     bool revoked = false;
   };
+  struct Peer {
+    bool seen = false;
+    bool settled = false;
+    bool gone = false;
+    Clock::time_point discovered{};
+  };
   mutable std::mutex mutex_;
   std::map<protocol::SenderKey, Binding> bindings_;
+  std::map<Guid, Peer> peers_;
+  Clock::time_point last_discovery_{};
 };
 
 // A content filter on the key, "agent_id = %0", that reads the id straight from the
@@ -301,6 +369,31 @@ class LivelinessListener : public fdds::DataReaderListener {
   std::function<void()> wake_;
 };
 
+constexpr int kMaxAuthenticationRestarts = 5;
+
+// Waits until every participant discovered so far has an authentication outcome and no new
+// one appeared for a while (true), or one has had none for kStall (false: the handshake
+// stalled). Bounded: after kLongest it goes on with what it has.
+bool AwaitAuthentication(const SecureListener& listener, const Config& config) {
+  const auto start = Clock::now();
+  const auto as_duration = [](double s) {
+    return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
+  };
+  // A handshake is a few milliseconds; its messages are resent every 0.5 s and more.
+  const auto stall = as_duration(3.0);
+  const auto least = as_duration(std::min(0.5, config.network.participant_announcement_s));
+  const auto quiet = as_duration(0.2);
+  const auto longest = as_duration(15.0);
+  while (Clock::now() - start < longest) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const SecureListener::Progress p = listener.Check(stall);
+    if (p.stalled > 0) return false;
+    const auto now = Clock::now();
+    if (p.pending == 0 && now - start >= least && now - p.last_discovery >= quiet) return true;
+  }
+  return true;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -318,7 +411,8 @@ struct Node::Impl {
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   std::set<protocol::SenderKey> own_writers;
   bool secure = false;   // network.security.enabled
-  WriterPartitions writer_partitions;  // the participant's listener when secure
+  SecureListener secure_listener;  // the participant's listener when secure
+  int authentication_restarts = 0;
   AgentIdFilterFactory filter_factory;  // registered with the participant
   fdds::WaitSet waitset;
   fdds::GuardCondition guard;
@@ -344,9 +438,20 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
   if (d.secure) {
     fdds::DomainParticipantQos qos = ParticipantQos(config, participant_name);
     ApplySecurity(qos, config, participant_name);
+    auto* factory = fdds::DomainParticipantFactory::get_instance();
     // No status through this listener (StatusMask::none): only discovery callbacks.
-    d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
-        config.network.domain_id, qos, &d.writer_partitions, fdds::StatusMask::none());
+    d.participant = factory->create_participant(config.network.domain_id, qos, &d.secure_listener,
+                                                fdds::StatusMask::none());
+    // Before any endpoint exists: a handshake that stalls (SecureListener) costs a new
+    // participant, a few seconds, and nothing else.
+    while (d.participant != nullptr && !AwaitAuthentication(d.secure_listener, config) &&
+           d.authentication_restarts < kMaxAuthenticationRestarts) {
+      factory->delete_participant(d.participant);
+      d.secure_listener.ResetPeers();
+      ++d.authentication_restarts;
+      d.participant = factory->create_participant(config.network.domain_id, qos, &d.secure_listener,
+                                                  fdds::StatusMask::none());
+    }
   } else {
     d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
         config.network.domain_id, ParticipantQos(config, participant_name));
@@ -563,7 +668,7 @@ bool Node::Secure() const { return impl_->secure; }
 
 std::optional<AgentId> Node::AuthorizedAgent(const protocol::SenderKey& writer) const {
   if (!impl_->secure) return std::nullopt;
-  const auto partitions = impl_->writer_partitions.Of(writer);
+  const auto partitions = impl_->secure_listener.Of(writer);
   if (!partitions) return std::nullopt;
   return AuthorizedAgentOf(*partitions, impl_->run_name);
 }
@@ -571,6 +676,8 @@ std::optional<AgentId> Node::AuthorizedAgent(const protocol::SenderKey& writer) 
 protocol::SenderKey Node::WriterKey(Topic topic) const {
   return ToKey(impl_->writers.at(topic)->get_instance_handle());
 }
+
+int Node::AuthenticationRestarts() const { return impl_->authentication_restarts; }
 
 int Node::MatchedWriters(Topic topic) const {
   auto it = impl_->readers.find(topic);

@@ -82,6 +82,9 @@ class Node {
   // for good once it announces other partitions. nullopt for the target, an observer, an
   // unknown writer, and without security.
   std::optional<AgentId> AuthorizedAgent(const protocol::SenderKey& writer) const;
+  // With security: how often the participant was created anew at start because the
+  // authentication with a peer stalled (docs/SECURITY.md, "Start-up"). 0 without.
+  int AuthenticationRestarts() const;
   // This node's writer of `topic` as peers see it.
   protocol::SenderKey WriterKey(Topic topic) const;
   // How many writers currently match this node's reader of `topic` (its own included).

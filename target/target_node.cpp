@@ -39,6 +39,11 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
   // A reader of ranges for id 0, which nobody writes: before this target has a range writer
   // of its own, it matches only another target's (see AnotherTargetInThisRun).
   node_.AddReader({dds::Topic::kRange, 0});
+  if (node_.AuthenticationRestarts() > 0) {
+    context_.log->warn("authentication with a peer stalled at start; participant created anew {} "
+                       "time(s) (docs/SECURITY.md, \"Start-up\")",
+                       node_.AuthenticationRestarts());
+  }
   context_.log->info("target up: run '{}', domain {}", context_.run_name, config_.network.domain_id);
 }
 

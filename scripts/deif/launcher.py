@@ -24,7 +24,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from . import artefacts, config as cfg, hosts as hosts_mod, paths
+from . import artefacts, certs as certs_mod, config as cfg, hosts as hosts_mod, paths
 
 SHM_DIR = "/dev/shm"
 SHM_PREFIXES = ("fastrtps_", "sem.fastrtps_", "fast_datasharing_")
@@ -160,7 +160,8 @@ def default_out_dir(config_path):
 class Launcher:
     def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
                  overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
-                 progress=True, log=sys.stderr, timeout_s=None, discovery_server=False):
+                 progress=True, log=sys.stderr, timeout_s=None, discovery_server=False,
+                 secure=False, certs_dir=None):
         self.log = log
         self.progress = progress and hasattr(log, "isatty") and log.isatty()
         if hosts < 1:
@@ -195,6 +196,15 @@ class Launcher:
         self.discovery_server = None  # (address, port) when the run has its own server
         if discovery_server:
             sets.append("network.discovery=server")
+        # DDS Security (docs/SECURITY.md): the run's own CA and certificates in <out>/certs,
+        # or the given folder's. Every process gets the same two keys.
+        self.secure = secure or certs_dir is not None
+        self.certs_given = certs_dir is not None
+        if self.secure:
+            self.certs_dir = os.path.abspath(certs_dir if certs_dir is not None
+                                             else os.path.join(out_dir, "certs"))
+            sets += ["network.security.enabled=true",
+                     "network.security.dir=" + cfg.flow(self.certs_dir)]
         try:
             resolved = cfg.resolve(config_path, sets)
         except cfg.ConfigRefused as e:
@@ -242,6 +252,8 @@ class Launcher:
                 f.write(cfg.canonical_yaml(config_path, sets))
         except OSError as e:
             raise LaunchError(f"--out {out_dir}: cannot write there ({e.strerror})")
+        if self.secure:
+            self._prepare_certs()
         self.source_config = config_path
         self.overrides = sets
         self.procs = {}
@@ -249,6 +261,30 @@ class Launcher:
         self.shm_before = shm_snapshot()
         self.started = time.time()
         self.interrupted = None
+
+    def _prepare_certs(self):
+        """Issues the run's certificates (a CA of its own, permissions for this run's
+        partitions only, the CA's private key deleted once they are signed), or checks that
+        the given folder has every process's files. The processes check the files
+        themselves at start (exit 2, naming the file and the reason)."""
+        names = certs_mod.identities(self.n, 0)
+        if self.certs_given:
+            for name in names:
+                for suffix in (".cert.pem", ".key.pem", ".permissions.p7s"):
+                    path = os.path.join(self.certs_dir, name + suffix)
+                    if not os.path.isfile(path):
+                        raise LaunchError(f"--certs {self.certs_dir}: {name}{suffix} is missing "
+                                          f"(scripts/deif-certs {self.certs_dir} --agents {self.n})")
+            for common in ("ca.pem", "governance.p7s"):
+                if not os.path.isfile(os.path.join(self.certs_dir, common)):
+                    raise LaunchError(f"--certs {self.certs_dir}: {common} is missing")
+            return
+        try:
+            certs_mod.ensure(self.certs_dir, self.n, observers=1, days=30, run=self.run_name)
+        except certs_mod.CertsError as e:
+            raise LaunchError(f"--secure: {e}")
+        # Nobody issues more certificates for this run (docs/SECURITY.md).
+        os.unlink(os.path.join(self.certs_dir, "ca.key.pem"))
 
     def _blame_fault(self, message, n_file, extra):
         """A refused command-line fault is blamed on its flag, not on the config file."""
@@ -531,6 +567,9 @@ class Launcher:
             "domain_id": self.domain,
             "hosts": self.hosts_count,
             "loss": self.loss,
+            "security": ({"enabled": True, "certs": self.certs_dir,
+                          "issued_for_run": not self.certs_given} if self.secure
+                         else {"enabled": False}),
             "partitions": [p.__dict__ for p in self.partitions],
             "faults": [f.__dict__ for f in self.faults],
             "processes": procs,
