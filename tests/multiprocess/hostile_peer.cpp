@@ -13,12 +13,24 @@
 //   ranges         ranges with variance 0, a 50 m range and a step of 1e12, for every agent
 //   states         agent states for an id outside 1..count, and NaN positions
 //   flood          contributions with unknown ids, as fast as it can, for --seconds
-// It prints "sent <n> <kind>" when done. --run "" joins no run partition (a stray process).
+//   impersonate    well-formed contributions and states under the id --claim, for every step
+//                  the target publishes during --seconds
+//   listen         nothing: it only reads, for --seconds
+// It prints "sent <n> <kind>" and "received <n>" (samples on every topic it could read) when
+// done. --run "" joins no run partition (a stray process).
+//
+// DDS Security (docs/SECURITY.md): --name is the participant's name, which picks its files in
+// the security folder; --security DIR uses the files in DIR, --security off joins without
+// security, and without it the config decides. A writer or reader that its permissions refuse
+// is reported as "refused <topic>"; an attack whose writer is refused exits 3. --linger keeps
+// it in the domain after that until SIGTERM.
 #include <chrono>
+#include <csignal>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <string>
 #include <thread>
 
@@ -56,36 +68,97 @@ ContributionMsg Valid(const deif::Config& config, deif::protocol::RunToken run, 
 
 void Pause(int ms) { std::this_thread::sleep_for(std::chrono::milliseconds(ms)); }
 
+volatile std::sig_atomic_t g_stop = 0;
+
+// With --linger: stays (reading, so nothing backs up) until SIGTERM or SIGINT, so that a test
+// decides when this participant leaves the domain.
+void Linger(bool linger, deif::dds::Node& node) {
+  if (!linger) return;
+  std::signal(SIGTERM, [](int) { g_stop = 1; });
+  std::signal(SIGINT, [](int) { g_stop = 1; });
+  while (g_stop == 0) node.Wait(std::chrono::steady_clock::now() + std::chrono::milliseconds(50));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"Sends what a misbehaving peer could into a running network (test tool)."};
   std::string config_path, run_name, attack, run_dir;
   double seconds = 10.0;
+  std::string name = "hostile";
+  std::string security;
+  int claim = 1;
+  bool linger = false;
   app.add_option("--config", config_path, "the run's config.yaml")->required();
   app.add_option("--run", run_name, "the run's name (\"\": no run partition)")->required();
   app.add_option("--attack", attack, "contributions | truth | ranges | states | flood")->required();
   app.add_option("--follow", run_dir, "run folder whose target.csv tells the current step")->required();
-  app.add_option("--seconds", seconds, "how long the flood lasts");
+  app.add_option("--seconds", seconds, "how long the flood, impersonation or listening lasts");
+  app.add_option("--name", name, "participant name; with security it picks the files (agent-2, ...)");
+  app.add_option("--security", security, "DIR: security with the files in DIR; off: none");
+  app.add_option("--claim", claim, "the agent id an impersonation claims");
+  app.add_flag("--linger", linger, "when done, stay in the domain until SIGTERM or SIGINT");
   CLI11_PARSE(app, argc, argv);
 
-  const deif::Config config = deif::LoadConfig(config_path);
+  deif::Config config = deif::LoadConfig(config_path);
+  if (security == "off") {
+    config.network.security.enabled = false;
+  } else if (!security.empty()) {
+    config.network.security.enabled = true;
+    config.network.security.dir = security;
+  }
   const auto run = deif::protocol::RunTokenOf(run_name);
-  deif::dds::Node node(config, "hostile", run_name.empty() ? "no-such-run" : run_name);
-  node.AddWriter(deif::dds::Topic::kContribution);
-  node.AddWriter(deif::dds::Topic::kTruth);
-  node.AddWriter(deif::dds::Topic::kRange);
-  node.AddWriter(deif::dds::Topic::kAgentState);
-  node.AddReader({deif::dds::Topic::kContribution, {}});
+  deif::dds::Node node(config, name, run_name.empty() ? "no-such-run" : run_name);
+  using deif::dds::Topic;
+  const auto topic_name = [](Topic t) {
+    switch (t) {
+      case Topic::kTruth: return "deif/truth";
+      case Topic::kRange: return "deif/range";
+      case Topic::kContribution: return "deif/contribution";
+      case Topic::kAgentState: return "deif/agent_state";
+    }
+    return "?";
+  };
+  std::map<Topic, bool> can_write;
+  for (Topic t : {Topic::kContribution, Topic::kTruth, Topic::kRange, Topic::kAgentState}) {
+    try {
+      node.AddWriter(t);
+      can_write[t] = true;
+    } catch (const std::exception&) {  // refused by this participant's permissions
+      std::printf("refused %s\n", topic_name(t));
+      can_write[t] = false;
+    }
+    try {
+      node.AddReader({t, {}});
+    } catch (const std::exception&) {
+      std::printf("refused reading %s\n", topic_name(t));
+    }
+  }
+  std::fflush(stdout);
+  const std::map<std::string, Topic> needs = {
+      {"contributions", Topic::kContribution}, {"truth", Topic::kTruth}, {"ranges", Topic::kRange},
+      {"states", Topic::kAgentState}, {"flood", Topic::kContribution},
+      {"impersonate", Topic::kContribution}};
+  if (needs.count(attack) != 0 && !can_write[needs.at(attack)]) {
+    std::printf("sent 0 %s\nreceived 0\n", attack.c_str());
+    std::fflush(stdout);
+    Linger(linger, node);
+    return 3;
+  }
   node.StartLiveliness();
+  long received = 0;
+  const auto drain = [&](int ms) {
+    received += static_cast<long>(
+        node.Wait(std::chrono::steady_clock::now() + std::chrono::milliseconds(ms)).size());
+  };
   // Wait until this participant has discovered every agent (so every agent receives every
   // sample), then a little more for the agents to discover it.
   const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(10);
   while (node.MatchedWriters(deif::dds::Topic::kContribution) < config.agents.count &&
          std::chrono::steady_clock::now() < give_up) {
-    node.Wait(std::chrono::steady_clock::now() + std::chrono::milliseconds(20));
+    drain(20);
   }
-  Pause(300);
+  drain(300);
 
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
@@ -173,12 +246,34 @@ int main(int argc, char** argv) {
       ++i;
       if (i % 1000 == 0) step = CurrentStep(run_dir) + 1;
     }
+  } else if (attack == "impersonate") {
+    const auto end = std::chrono::steady_clock::now() +
+                     std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                         std::chrono::duration<double>(seconds));
+    while (std::chrono::steady_clock::now() < end) {  // every 10 ms, for the next step
+      const long long step = CurrentStep(run_dir) + 1;
+      send(Valid(config, run, claim, step), 0);
+      deif::protocol::StateMsg s;
+      s.run = run;
+      s.agent_id = claim;
+      s.step = step - 1;
+      s.instance_token = 0xbadbadbad;
+      s.position_m = deif::Vector2(0.5, 0.5);
+      send(s, 0);
+      drain(10);
+    }
+  } else if (attack == "listen") {
+    const auto end = std::chrono::steady_clock::now() +
+                     std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                         std::chrono::duration<double>(seconds));
+    while (std::chrono::steady_clock::now() < end) drain(50);
   } else {
     std::fprintf(stderr, "deif_hostile: error: unknown --attack '%s'\n", attack.c_str());
     return 2;
   }
-  std::printf("sent %ld %s\n", sent, attack.c_str());
+  drain(500);
+  std::printf("sent %ld %s\nreceived %ld\n", sent, attack.c_str(), received);
   std::fflush(stdout);
-  Pause(500);
+  Linger(linger, node);
   return 0;
 }
