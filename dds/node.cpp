@@ -6,7 +6,9 @@
 #include <array>
 #include <atomic>
 #include <condition_variable>
+#include <cstdint>
 #include <cstdlib>
+#include <filesystem>
 #include <map>
 #include <mutex>
 #include <random>
@@ -151,6 +153,29 @@ fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
   return qos;
 }
 
+// A participant id whose shared-memory ports (/dev/shm/fastrtps_port<port>, the unicast
+// ports of RTPS's default port mapping) no process has created: a process restarted after
+// kill -9 must not reopen the ports its dead predecessor left. Fast DDS finds such a port
+// unhealthy (nobody drains it), removes the segment and creates a new one under the same
+// name, while the live peers keep writing into the old mapping: the newcomer then hears
+// nothing over shared memory (docs/FASTDDS_NOTES.md, "Shared memory and restarts"). A taken
+// port found anyway (two processes starting at once) is moved on by Fast DDS itself. -1
+// (Fast DDS picks) when every id in the domain's range has files.
+std::int32_t FreshShmParticipantId(int domain_id) {
+  // RTPS default port mapping: PB 7400, DG 250, PG 2, d1 10 (metatraffic unicast), d3 11.
+  constexpr int kPortBase = 7400, kDomainGain = 250, kIdGain = 2, kMetaOffset = 10;
+  constexpr int kMaxId = (kDomainGain - kMetaOffset) / kIdGain - 1;  // ports stay in the domain
+  const auto exists = [](int port) {
+    std::error_code ec;
+    return std::filesystem::exists("/dev/shm/fastrtps_port" + std::to_string(port), ec);
+  };
+  for (int id = 0; id <= kMaxId; ++id) {
+    const int meta = kPortBase + kDomainGain * domain_id + kMetaOffset + kIdGain * id;
+    if (!exists(meta) && !exists(meta + 1)) return id;
+  }
+  return -1;
+}
+
 fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::string& name) {
   // Start from the factory default, so that an XML profile named by
   // FASTRTPS_DEFAULT_PROFILES_FILE (initial peers, transports: docs/RUNNING.md) applies.
@@ -178,6 +203,9 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
     if (network.transport == TransportKind::kShm) {
       qos.transport().user_transports.push_back(
           std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>());
+      if (qos.wire_protocol().participant_id < 0) {
+        qos.wire_protocol().participant_id = FreshShmParticipantId(network.domain_id);
+      }
     }
     auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
     udp->sendBufferSize = 1 << 20;

@@ -400,6 +400,15 @@ bool AgentProtocol::IsComplete(const Record& r) const {
   return true;
 }
 
+bool AgentProtocol::MissesALostMember(const Record& r) const {
+  for (AgentId id : *r.roll_call) {
+    if (id == id_ || r.held.count(id) > 0) continue;
+    auto peer = peers_.find(id);
+    if (peer != peers_.end() && peer->second.writer && !peer->second.alive) return true;
+  }
+  return false;
+}
+
 bool AgentProtocol::CanFinish(const Record& r, double now_s) const {
   if (IsComplete(r) || now_s >= r.deadline_s) return true;
   if (RealTime() || r.awaiting_basis) return false;
@@ -424,16 +433,43 @@ void AgentProtocol::FinishStep(double now_s) {
   (void)now_s;
   Record& r = records_.rbegin()->second;
   if (r.awaiting_basis) {
-    // Nobody to adopt from by the deadline: continue from this agent's own estimate.
+    bool peers = false;
+    if (r.roll_call) {
+      for (AgentId member : *r.roll_call) peers = peers || member != id_;
+    }
+    if (peers) {
+      // Joining a running network: no peer's posterior has come yet. This step is
+      // skipped (no row: this agent has no estimate worth writing), and the next one tries
+      // again; nobody waits for this agent meanwhile (it is not in the roll call).
+      LogOnce(LogLevel::kInfo, "joining",
+              "joining at step " + std::to_string(r.step) + ": waiting for a peer's posterior "
+              "to adopt; no row until then (logged once)");
+      written_ = r.step;
+      open_ = false;
+      records_.erase(r.step);
+      return;
+    }
+    // Alone: nobody to adopt from; continue from this agent's own estimate.
     r.awaiting_basis = false;
     needs_basis_ = false;
     Log(LogLevel::kWarn, "step " + std::to_string(r.step) +
-                             ": no peer posterior to adopt; continuing from this agent's own");
+                             ": no peer in the roll call to adopt from; continuing from this "
+                             "agent's own estimate");
     Recompute(r.step);
     if (r.own_range && !r.own_sent) EmitOwnContribution(r);
   }
   const bool complete = IsComplete(r);
   if (!complete) ++counters_.deadline_misses;
+  if (!complete && r.roll_call && MissesALostMember(r)) {
+    // A member died in the step: its contribution may have reached some peers and not
+    // others, and nobody will ever repair that. Ask for the merge now rather than when the
+    // step leaves the history (docs/PROTOCOL.md, "Beyond the history: one merge"); where
+    // every agent misses the same contributions the merge changes nothing.
+    merge_pending_ = true;
+    Log(LogLevel::kWarn, "step " + std::to_string(r.step) +
+                             " written without a lost member's contribution; the next "
+                             "contribution asks the network for a merge");
+  }
   const int dim = model_.StateDim();
   if (!IsValidInfoState(r.posterior, dim)) {
     // Never publish or write a non-finite estimate: say so and adopt a peer's next time.

@@ -169,6 +169,8 @@ class AgentProtocol {
   bool CanFinish(const Record& r, double now_s) const;
   void FinishStep(double now_s);
   bool IsComplete(const Record& r) const;
+  // Whether a roll-call member whose contribution `r` lacks has been seen lost.
+  bool MissesALostMember(const Record& r) const;
   void ApplyRange(Record& r, const RangeMsg& msg, bool unusable);
   void EmitOwnContribution(Record& r);
   bool TryAdopt(Record& r);

@@ -395,6 +395,17 @@ class Launcher:
             p.popen.send_signal(signal.SIGCONT)
         self._say(f"fault: {fault.action} agent {fault.agent} at step {step}")
 
+    def restart_agent(self, agent):
+        """kill -9 agent and start it again in the same slot (its CSV is appended to); it
+        rejoins the running network by adopting a peer's posterior (docs/PROTOCOL.md)."""
+        p = self.procs[f"agent_{agent}"]
+        if p.popen.poll() is None:
+            p.popen.send_signal(signal.SIGKILL)
+            p.popen.wait()
+        p.restarts += 1
+        p.argv = self._argv("deif_agent", "--id", str(agent), "--append")
+        self._spawn(p)
+
     def _go(self, step):
         t = self.procs["target"]
         try:
