@@ -312,6 +312,38 @@ TEST_CASE("A range far from the prediction fails the innovation gate and carries
   CHECK((net.rows.at(1)[3].estimate_m - net.truth[3].p_true).norm() < 0.5);
 }
 
+TEST_CASE("A member that dies after its contribution reached only some peers leads to one merge "
+          "at the next step, long before the step leaves the history",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  // GIVEN agent 3's contribution of step 3 reaches agent 2 but not agent 1, and agent 3 dies
+  net.Pump([](const Envelope& e) { return IsContribution(e, 3, 1, 3); });
+  net.AdvanceTime(0.1);
+  net.Kill(3);
+  net.Pump();
+  // WHEN the run goes on (8 steps of history; 30 steps)
+  net.RunUntil(30);
+  // THEN agents 1 and 2 wrote step 3 with different sets and estimates; agent 1's next
+  // contribution asked for a merge, both merged once, at step 4, and their estimates are
+  // identical from step 4 to the end (waiting for step 3 to leave the history would have
+  // kept them apart until step 11)
+  const auto& rows1 = net.rows.at(1);
+  const auto& rows2 = net.rows.at(2);
+  REQUIRE(rows1.size() == 30);
+  REQUIRE(rows2.size() == 30);
+  CHECK(rows1[2].fused == 2);
+  CHECK(rows2[2].fused == 3);
+  CHECK(rows1[2].estimate_m != rows2[2].estimate_m);
+  CHECK(net.agents.at(1)->counters().merges == 1);
+  CHECK(net.agents.at(2)->counters().merges == 1);
+  for (std::size_t i = 3; i < 30; ++i) {
+    INFO("step " << i + 1);
+    CHECK(rows1[i].estimate_m == rows2[i].estimate_m);
+  }
+}
+
 TEST_CASE("A lost member is not waited for in lock-step", "[protocol]") {
   ScriptedNetwork net(kThreeAgents);
   net.Start();
