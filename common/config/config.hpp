@@ -95,7 +95,7 @@ struct NetworkConfig {
   double nack_response_delay_s = 0.001;       // reliable writers [s]
   double heartbeat_response_delay_s = 0.001;  // reliable readers [s]
   double deadline_fraction = 0.8;    // real time: fuse by this fraction of the period
-  TransportKind transport = TransportKind::kUdp;
+  TransportKind transport = TransportKind::kShm;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
   std::string discovery_server = "127.0.0.1:11811";  // host:port, with discovery: server
   bool ros2_naming = false;          // rt/deif/... topics and ROS 2 type names

@@ -553,9 +553,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Doc("realtime mode: an agent fuses what arrived within this fraction of the period "
            "after its range; later contributions are fused late (history_steps).");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
-      .Default(TransportKind::kUdp)
-      .Doc("udp: UDPv4 only; works across hosts and with packet-loss rules. shm: shared "
-           "memory between processes on one host, plus UDPv4 for the others.");
+      .Default(TransportKind::kShm)
+      .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "
+           "(the faster: docs/BENCHMARKS.md). udp: UDPv4 only, also between processes of "
+           "one host; deif-run --hosts uses it, so that packet-loss rules apply.");
   t.Add("discovery", [](Config& c) -> auto& { return c.network.discovery; })
       .Default(DiscoveryKind::kSimple)
       .Doc("simple: multicast participant discovery (SPDP). server: the Fast DDS Discovery "

@@ -298,7 +298,7 @@ TEST_CASE("ToYaml writes a config that parses back to the same values", "[config
       "  nack_response_delay_s: 0.002\n"
       "  heartbeat_response_delay_s: 0.003\n"
       "  deadline_fraction: 0.75\n"
-      "  transport: shm\n"
+      "  transport: udp\n"
       "  discovery: server\n"
       "  discovery_server: \"192.168.1.5:11900\"\n"
       "  ros2_naming: true\n"
@@ -362,7 +362,7 @@ TEST_CASE("ToYaml writes a config that parses back to the same values", "[config
   CHECK(b.network.nack_response_delay_s == 0.002);
   CHECK(b.network.heartbeat_response_delay_s == 0.003);
   CHECK(b.network.deadline_fraction == 0.75);
-  CHECK(b.network.transport == deif::TransportKind::kShm);
+  CHECK(b.network.transport == deif::TransportKind::kUdp);
   CHECK(b.network.discovery == deif::DiscoveryKind::kServer);
   CHECK(b.network.discovery_server == "192.168.1.5:11900");
   CHECK(b.network.ros2_naming);
