@@ -48,7 +48,7 @@ class Browser:
         caps = {"capabilities": {"alwaysMatch": {"browserName": "chrome", "goog:chromeOptions": {
             "binary": CHROMIUM,
             "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                     "--window-size=1400,900", f"--user-data-dir={os.path.join(work, 'chromium')}"]}}}}
+                     "--window-size=1400,1150", f"--user-data-dir={os.path.join(work, 'chromium')}"]}}}}
         self.session = self._call("POST", "/session", caps)["sessionId"]
 
     def _call(self, method, path, body=None):
