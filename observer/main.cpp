@@ -20,6 +20,7 @@
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -198,8 +199,12 @@ class Observer : public dds::Application {
 
   // New series points and marks into the files, and new marks into the log.
   void WriteFiles() {
-    for (const SeriesPoint& p : model_.series()) {
-      if (p.step <= written_step_) continue;
+    // Only the tail is new: find where it starts from the back (the series holds thousands).
+    const auto& series = model_.series();
+    auto first_new = series.end();
+    while (first_new != series.begin() && std::prev(first_new)->step > written_step_) --first_new;
+    for (auto it = first_new; it != series.end(); ++it) {
+      const SeriesPoint& p = *it;
       written_step_ = p.step;
       if (series_csv_) {
         series_csv_->WriteLine(std::to_string(p.step) + "," + Cell(p.t_s) + "," + std::to_string(p.agent) +
@@ -207,8 +212,11 @@ class Observer : public dds::Application {
                                "," + Cell(p.pcrlb_m) + "," + Cell(p.ratio) + "," + std::to_string(p.alive));
       }
     }
-    for (const Mark& m : model_.marks()) {
-      if (m.id <= written_mark_) continue;
+    const auto& marks = model_.marks();
+    auto first_mark = marks.end();
+    while (first_mark != marks.begin() && std::prev(first_mark)->id > written_mark_) --first_mark;
+    for (auto it = first_mark; it != marks.end(); ++it) {
+      const Mark& m = *it;
       written_mark_ = m.id;
       context_.log->info("mark at step {}: {}", m.step, m.text);
       if (marks_csv_) {
