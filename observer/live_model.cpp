@@ -217,7 +217,7 @@ void LiveModel::OnTimer(double now_s) {
       Touch(now_s);
     }
   }
-  FinaliseSteps(now_s, false);
+  FinaliseSteps(now_s, false, true);
   FlushCounterMarks(now_s, false);
 }
 
@@ -324,12 +324,15 @@ bool LiveModel::StepComplete(StepIndex, const StepData& data) const {
   return true;
 }
 
-void LiveModel::FinaliseSteps(double now_s, bool all_old) {
+void LiveModel::FinaliseSteps(double now_s, bool all_old, bool by_age) {
   while (!steps_.empty()) {
     auto it = steps_.begin();
     const StepIndex k = it->first;
-    const bool done = all_old || k + 2 <= newest_step_ || StepComplete(k, it->second) ||
-                      now_s - it->second.first_seen_s > kStepGiveUpS;
+    // A step two behind the newest, or too old, is given up only from OnTimer: samples of
+    // one batch come topic by topic (all truths, then all ranges), so a later step's truth
+    // can be read before this step's ranges.
+    const bool old = by_age && (k + 2 <= newest_step_ || now_s - it->second.first_seen_s > kStepGiveUpS);
+    const bool done = all_old || old || StepComplete(k, it->second);
     if (!done) return;
     Finalise(k, it->second);
     finalised_ = k;

@@ -88,7 +88,8 @@ class LiveModel {
                double written_unix_s, double now_s);
   void OnLiveliness(WriterKind kind, const protocol::SenderKey& writer, bool alive, double now_s);
   // now_s is the observer's clock in seconds (monotonic; e.g. since its start).
-  // Staleness, settled steps, throttled marks: call at least every 100 ms.
+  // Staleness, settled steps, throttled marks: call after every batch of samples and at
+  // least every 100 ms. Incomplete steps are given up only here.
   void OnTimer(double now_s);
 
   // Whether an update is due now (something changed, the last one is at least
@@ -148,7 +149,7 @@ class LiveModel {
   void AddMark(double now_s, const std::string& kind, AgentId agent, const std::string& text);
   void NoteStep(StepIndex step, double now_s);
   StepData& Step(StepIndex step, double now_s);
-  void FinaliseSteps(double now_s, bool all_old);
+  void FinaliseSteps(double now_s, bool all_old, bool by_age = false);
   void Finalise(StepIndex step, StepData& data);
   bool StepComplete(StepIndex step, const StepData& data) const;
   void FlushCounterMarks(double now_s, bool force);
