@@ -339,8 +339,7 @@ class Launcher:
     def _start_observer(self):
         """deif_observer, a passive participant serving the live page (docs/LIVE.md), started
         before the others so it sees every step; its first line on stdout is the URL."""
-        # At a lower CPU priority: on a shared host the run goes first, the page may lag.
-        p = Proc("observer", self._argv("deif_observer", "--port", str(self.live_port), "--nice", "10"), 1,
+        p = Proc("observer", self._argv("deif_observer", "--port", str(self.live_port)), 1,
                  log_path=os.path.join(self.out_dir, "logs", "observer.log"))
         p.expected_death = True  # stopped by the launcher at the end
         logf = open(p.log_path, "ab")
