@@ -438,6 +438,7 @@ struct Node::Impl {
   std::map<Topic, fdds::DataReader*> readers;
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   std::set<protocol::SenderKey> own_writers;
+  bool passive = false;  // MakePassive(): no writer, ever
   bool secure = false;   // network.security.enabled
   SecureListener secure_listener;  // the participant's listener when secure
   int authentication_restarts = 0;
@@ -553,12 +554,20 @@ Node::~Node() {
 
 void Node::AddWriter(Topic topic) {
   Impl& d = *impl_;
+  if (d.passive) {
+    throw std::logic_error(std::string("a passive node has no writer (") + NamesOf(topic).name + ")");
+  }
   fdds::DataWriter* writer = d.publisher->create_datawriter(d.topics.at(topic), WriterQos(topic, d.config));
   if (writer == nullptr) {
     throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
   }
   d.writers[topic] = writer;
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
+}
+
+void Node::MakePassive() {
+  if (!impl_->writers.empty()) throw std::logic_error("a node with writers cannot become passive");
+  impl_->passive = true;
 }
 
 void Node::AddReader(const ReaderSpec& spec) {
@@ -644,7 +653,9 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
     if (!info.valid_data) continue;
     const protocol::SenderKey from = ToKey(info.publication_handle);
     if (d.own_writers.count(from) > 0) continue;  // our own samples
-    out.emplace_back(Received<Msg>{FromIdl(sample), from});
+    const double written_unix_s = static_cast<double>(info.source_timestamp.seconds()) +
+                                  1e-9 * static_cast<double>(info.source_timestamp.nanosec());
+    out.emplace_back(Received<Msg>{FromIdl(sample), from, written_unix_s});
   }
 }
 

@@ -21,11 +21,13 @@ namespace deif::dds {
 
 using Clock = std::chrono::steady_clock;
 
-// A sample and the writer that wrote it.
+// A sample, the writer that wrote it, and when it wrote it (the DDS source timestamp: the
+// writer's wall clock, seconds since the Unix epoch; comparable across processes of one host).
 template <typename M>
 struct Received {
   M msg;
   protocol::SenderKey from;
+  double written_unix_s = 0.0;
 };
 // A remote writer of `topic` became alive or not alive (liveliness, or it unmatched).
 struct LivelinessChange {
@@ -56,6 +58,10 @@ class Node {
 
   void AddWriter(Topic topic);
   void AddReader(const ReaderSpec& spec);
+  // Makes this node passive for good (an observer, docs/LIVE.md): it has no writer, and
+  // AddWriter throws std::logic_error from now on, so it never publishes on the network's
+  // topics. Throws std::logic_error if it already has a writer.
+  void MakePassive();
   // Starts asserting the liveliness of every writer with MANUAL_BY_TOPIC liveliness (range,
   // contribution, agent_state) network.liveliness_assertions_per_lease times per lease,
   // skipping writers that wrote within that period. Until then they are not alive to peers.

@@ -158,6 +158,9 @@ def default_out_dir(config_path):
 
 
 class Launcher:
+    live_port = None  # deif-run --live [PORT]: run deif_observer beside the run (docs/LIVE.md)
+    live_url = None   # the page's URL, once the observer printed it
+
     def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
                  overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
                  progress=True, log=sys.stderr, timeout_s=None, discovery_server=False,
@@ -333,6 +336,27 @@ class Launcher:
             if len(parts) >= 2 and parts[0] == "hold" and parts[1].isdigit():
                 self.holds.put(int(parts[1]))
 
+    def _start_observer(self):
+        """deif_observer, a passive participant serving the live page (docs/LIVE.md), started
+        before the others so it sees every step; its first line on stdout is the URL."""
+        p = Proc("observer", self._argv("deif_observer", "--port", str(self.live_port)), 1,
+                 log_path=os.path.join(self.out_dir, "logs", "observer.log"))
+        p.expected_death = True  # stopped by the launcher at the end
+        logf = open(p.log_path, "ab")
+        argv = ["setpriv", "--pdeathsig", "KILL", "--", *p.argv]
+        if self.hosts is not None:
+            argv = self.hosts.command(p.host, argv)
+        p.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=logf, stdin=subprocess.DEVNULL)
+        logf.close()
+        self.procs[p.name] = p
+        line = p.popen.stdout.readline().decode(errors="replace").strip()
+        if line.startswith("deif_observer: "):
+            self.live_url = line.split(" ", 1)[1]
+            where = f" (inside host 1's namespace {self.hosts.namespace(1)})" if self.hosts else ""
+            self._say(f"live view: {self.live_url}{where}")
+        else:
+            self._say(f"live view: the observer did not start; see {p.log_path}")
+
     def start(self):
         if self.hosts_count > 1:
             self.hosts = hosts_mod.Hosts(self.hosts_count, self.domain).create()
@@ -346,6 +370,8 @@ class Launcher:
             p.expected_death = True  # stopped by the launcher at the end
             self.procs[p.name] = p
             time.sleep(0.5)
+        if self.live_port is not None:
+            self._start_observer()
         for j in range(1, self.n + 1):
             name = f"agent_{j}"
             p = Proc(name, self._argv("deif_agent", "--id", str(j)), self._host_of(name),
@@ -507,16 +533,18 @@ class Launcher:
         # The agents finish on their own after the last step.
         agent_deadline = time.time() + 10.0 + float(self.cfg["network"]["step_timeout_s"])
         server = self.procs.get("discovery_server")
+        observer = self.procs.get("observer")
         for name, p in self.procs.items():
-            if p is server:
+            if p is server or p is observer:
                 continue
             if p.stopped and p.popen.poll() is None:
                 p.popen.send_signal(signal.SIGCONT)
                 p.stopped = False
             self._reap(p, max(0.1, agent_deadline - time.time()))
-        if server is not None:
-            server.popen.send_signal(signal.SIGTERM)
-            self._reap(server, 3.0)
+        for p in (observer, server):
+            if p is not None:
+                p.popen.send_signal(signal.SIGTERM)
+                self._reap(p, 3.0)
         if self.progress:
             self.log.write("\n")
 
@@ -585,6 +613,7 @@ class Launcher:
             "faults": [f.__dict__ for f in self.faults],
             "processes": procs,
             "wall_time_s": time.time() - self.started,
+            "live_url": self.live_url,
             "shm_files_removed": removed,
             "metrics": metrics,
             "counters": counters,
@@ -604,10 +633,12 @@ class Launcher:
         return json.loads(proc.stdout)
 
 
-def run(config_path, out_dir, **kwargs):
+def run(config_path, out_dir, live=None, **kwargs):
     """Runs one launch to the end. SIGINT/SIGTERM stop every process, write summary.json and
-    raise Interrupted; namespaces are removed on every path."""
+    raise Interrupted; namespaces are removed on every path. live: a port for deif_observer's
+    page (0: any free port), or None for no observer."""
     launcher = Launcher(config_path, out_dir, **kwargs)
+    launcher.live_port = live
 
     def on_signal(signum, frame):
         raise Interrupted(signum)
