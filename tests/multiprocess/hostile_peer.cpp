@@ -260,7 +260,12 @@ int main(int argc, char** argv) {
       s.instance_token = 0xbadbadbad;
       s.position_m = deif::Vector2(0.5, 0.5);
       send(s, 0);
-      drain(10);
+      // Reads for the whole 10 ms (Wait returns at the first sample): a steady stream, not a
+      // flood (that is --attack flood).
+      const auto next = std::chrono::steady_clock::now() + std::chrono::milliseconds(10);
+      while (std::chrono::steady_clock::now() < next) {
+        received += static_cast<long>(node.Wait(next).size());
+      }
     }
   } else if (attack == "listen") {
     const auto end = std::chrono::steady_clock::now() +

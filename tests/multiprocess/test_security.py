@@ -1,10 +1,12 @@
 """Multi-process tests of DDS Security (docs/SECURITY.md): the real deif_target and
 deif_agent processes with PKI-DH authentication, access control by partition and AES-GCM
 encryption, launched by deif.launcher with --secure (a CA, certificates and permissions of
-the run's own), each on its own DDS domain.
+the run's own), each on its own DDS domain. Hostile participants are deif_hostile with a
+chosen identity: none, another CA's, or an identity of the run used for what it may not do.
 """
 import datetime
 import os
+import re
 import shutil
 import signal
 import struct
@@ -13,7 +15,7 @@ import time
 
 from deif import artefacts, certs, launcher, paths
 
-from test_processes import SLOW_CIRCLE, rows
+from test_processes import SLOW_CIRCLE, largest_difference, oracle, rows, steps_of
 
 AGENT_FILES = (".cert.pem", ".key.pem", ".permissions.p7s")
 
@@ -42,6 +44,196 @@ def test_secure_equals_plain(work, domain):
         assert all(r["fused"] == "4" for r in rows(secure.out_dir, j))
     for name, c in secure.summary["counters"].items():
         assert c["rejected"] == 0, (name, c)
+
+
+# ----------------------------------------------------------------------------------------
+def hostile_argv(lau, attack, *extra):
+    return [paths.executable("deif_hostile"), "--config", lau.config_path, "--run", lau.run_name,
+            "--attack", attack, "--follow", lau.out_dir, *extra]
+
+
+# These runs are compared with the simulation, so a live agent must never look lost. On a
+# busy 2-core machine every process was seen to report all its live peers lost at once, in
+# secure and plain runs alike, with the default 0.4 s lease; over shared memory, secure runs
+# on that machine twice stopped hearing each other for good (docs/SECURITY.md, "Known
+# limits"). Failure detection and the transport are not what these tests are about.
+STALL_PROOF = ["network.liveliness_lease_s=3.0", "network.transport=udp"]
+
+
+def stop_run(lau, wait_s=30.0):
+    """SIGTERM to every process of the run at once; each writes its rows and counters and
+    exits 0. A secure participant can take seconds to be deleted on a busy machine, longer
+    than the launcher's own grace of 3 s: this waits up to wait_s before the launcher reaps
+    what is left."""
+    live = [p.popen for p in lau.procs.values() if p.popen is not None and p.popen.poll() is None]
+    for popen in live:
+        popen.send_signal(signal.SIGTERM)
+    deadline = time.time() + wait_s
+    for popen in live:
+        try:
+            popen.wait(max(0.1, deadline - time.time()))
+        except subprocess.TimeoutExpired:
+            pass
+    lau.terminate_all()
+
+
+def with_hostiles(work, domain, hostiles, at_step=30, after_steps=100):
+    """A secure lock-step run with hostile peers started together at `at_step`. Each stays in
+    the domain (--linger) once done, so that no participant leaves while the run is observed.
+    When all are done, the run goes on for `after_steps` more steps and is then stopped
+    (SIGTERM: every process writes its rows and counters and exits 0), so that the attack
+    falls inside the run whatever the machine's speed. Returns (result, [(exit status,
+    stdout, stderr)], the step the run was at when the hostiles were done)."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=100000,
+                            domain=domain, progress=False, secure=True, overrides=STALL_PROOF)
+    outcomes, procs = [], []
+    try:
+        lau.start()
+        lau.wait_for_step(at_step)
+        procs = [subprocess.Popen(make(lau) + ["--linger"], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True) for make in hostiles]
+        for p in procs:
+            out = ""
+            while not re.search(r"^received \d+$", out, re.M):  # done, now lingering
+                line = p.stdout.readline()
+                assert line, f"the hostile peer ended early: {out[-800:]}"
+                out += line
+            outcomes.append(out)
+        done_at = lau.current_step()
+        lau.wait_for_step(done_at + after_steps)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        stop_run(lau)
+        res = lau.finish()
+    results = []
+    for p, out in zip(procs, outcomes):
+        rest, err = p.communicate(timeout=60)
+        results.append((p.returncode, out + rest, err))
+    return res, results, done_at
+
+
+def received(out):
+    return int(re.search(r"^received (\d+)$", out, re.M).group(1))
+
+
+def sent(out):
+    return int(re.search(r"^sent (\d+)", out, re.M).group(1))
+
+
+def assert_unharmed(res, work, done_at):
+    """Every process exited 0; every agent wrote every step from 1 without a gap, past the
+    end of the attack; and every row equals the in-process simulation of the run's config
+    bit for bit: nothing a hostile sent was fused or changed a roll call."""
+    assert res.ok, res.summary["processes"]
+    for j in range(1, 5):
+        steps = steps_of(res.out_dir, j)
+        assert steps == list(range(1, len(steps) + 1)), f"agent {j} skipped a step"
+        assert steps[-1] > done_at, (j, steps[-1], done_at)
+    worst, n = largest_difference(res.out_dir, oracle(res.out_dir), range(1, 5))
+    assert n > 4 * done_at and worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+
+
+def test_unauthenticated_peers(work, domain):
+    """A participant without certificates (as agent-9), and one with a complete set of
+    another CA's (as agent-2), each claim agent 1 for every step and read every topic for
+    4 s: neither receives one sample, no process counts one sample of theirs, and every agent
+    equals the simulation."""
+    foreign = os.path.join(work, "foreign")
+    certs.ensure(foreign, agents=4, observers=0)
+    res, outcomes, done_at = with_hostiles(work, domain, [
+        lambda lau: hostile_argv(lau, "impersonate", "--claim", "1", "--seconds", "4",
+                                 "--security", "off", "--name", "agent-9"),
+        lambda lau: hostile_argv(lau, "impersonate", "--claim", "1", "--seconds", "4",
+                                 "--security", foreign, "--name", "agent-2"),
+    ])
+    for code, out, err in outcomes:
+        assert code == 0, err[-800:]
+        assert sent(out) > 0, out       # it did publish ...
+        assert received(out) == 0, out  # ... and heard nothing
+    for name, c in res.summary["counters"].items():
+        assert c["rejected"] == 0 and c.get("dropped", 0) == 0, (name, c)  # the target has no drops
+    assert_unharmed(res, work, done_at)
+
+
+def central_difference(res, work):
+    """The largest difference, over every row of every agent, between the agents' estimate
+    and the centralized EIF replayed over the ranges the target sent (ranges.csv: the ranges
+    of each step's actual roll call); and the steps replayed."""
+    central_csv = os.path.join(work, "central.csv")
+    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(res.out_dir, "config.yaml"),
+                    "--replay-ranges", os.path.join(res.out_dir, "ranges.csv"), "--replay-out",
+                    central_csv, "--quiet"], check=True)
+    central = {r["step"]: r for r in artefacts.read_csv(central_csv)}
+    worst = 0.0
+    for j in range(1, 5):
+        for r in rows(res.out_dir, j):
+            for k in ("x_est", "y_est", "p_xx", "p_xy", "p_yy"):
+                worst = max(worst, abs(float(r[k]) - float(central[r["step"]][k])))
+    return worst, len(central)
+
+
+def test_claimed_id(work, domain):
+    """An authenticated process with the run's agent-2 identity claims agent 3 (contributions
+    and states, for the next step, every 10 ms) for 3 s. It is authenticated (it
+    hears the run) and its samples reach the agents and the target, which refuse them as not
+    authorised for id 3. None is fused: every agent wrote every step with every contribution
+    of its roll call, all agree, and every estimate equals the centralized EIF replayed over
+    the ranges the target actually sent, to 1e-9 (a forged contribution fused once would
+    move it by far more).
+
+    Not compared with the simulation: the burst can evict agent 3's own state from the
+    target's reader (keep-last per key) before it is read, so that agent 3 sits out a roll
+    call (docs/SECURITY.md, "Known limits"): the run then differs from the simulation while
+    no forged sample was fused."""
+    res, outcomes, done_at = with_hostiles(work, domain, [
+        lambda lau: hostile_argv(lau, "impersonate", "--claim", "3", "--seconds", "3",
+                                 "--name", "agent-2"),
+    ])
+    code, out, err = outcomes[0]
+    assert code == 0, err[-800:]
+    assert sent(out) > 0 and received(out) > 0, out
+    for name in ("agent_1", "agent_2", "agent_3", "agent_4", "target"):
+        c = res.summary["counters"][name]
+        refused = c["by_reason"].get("rejected: not_authorised", 0)
+        # Each receiver saw some of them (not necessarily all: a busy receiver's keep-last
+        # history drops part of a fast burst) and rejected nothing else.
+        assert 0 < refused <= sent(out) and c["rejected"] == refused, (name, c)
+    assert res.ok, res.summary["processes"]
+    for j in range(1, 5):
+        steps = steps_of(res.out_dir, j)
+        assert steps == list(range(1, len(steps) + 1)), f"agent {j} skipped a step"
+        assert steps[-1] > done_at, (j, steps[-1], done_at)
+        assert all(r["complete"] == "1" for r in rows(res.out_dir, j)), f"agent {j}"
+    assert res.summary["metrics"]["agreement_fraction"] == 1.0
+    worst, replayed = central_difference(res, work)
+    assert replayed > done_at
+    assert worst <= 1e-9, f"largest difference from the centralized EIF {worst:.3g}"
+
+
+def test_roles(work, domain):
+    """What a certificate's permissions refuse: the run's agent-2 identity cannot create a
+    writer of ranges or of the truth (so it can neither measure an agent nor say anything
+    about the world or the run's end), and the observer identity cannot create a writer of
+    contributions or states; nothing of theirs arrives and the run equals the simulation."""
+    res, outcomes, done_at = with_hostiles(work, domain, [
+        lambda lau: hostile_argv(lau, "ranges", "--name", "agent-2"),
+        lambda lau: hostile_argv(lau, "truth", "--name", "agent-2"),
+        lambda lau: hostile_argv(lau, "contributions", "--name", "observer-1"),
+    ])
+    (c_ranges, o_ranges, _), (c_truth, o_truth, _), (c_obs, o_obs, _) = outcomes
+    assert c_ranges == 3 and "refused deif/range" in o_ranges and sent(o_ranges) == 0
+    assert c_truth == 3 and "refused deif/truth" in o_truth and sent(o_truth) == 0
+    assert c_obs == 3 and "refused deif/contribution" in o_obs and sent(o_obs) == 0
+    # The control: the same agent identity may publish its contributions and states; the
+    # observer's may publish nothing.
+    for out in (o_ranges, o_truth):
+        assert "refused deif/contribution" not in out and "refused deif/agent_state" not in out
+    assert "refused deif/agent_state" in o_obs
+    for name, c in res.summary["counters"].items():
+        assert c["rejected"] == 0, (name, c)
+    assert_unharmed(res, work, done_at)
 
 
 # ----------------------------------------------------------------------------------------
