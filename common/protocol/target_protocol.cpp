@@ -182,6 +182,26 @@ void TargetProtocol::Advance(double now_s) {
         return;
       }
       case Phase::kStepping: {
+        if (!RealTime() && AliveAgents().empty()) {
+          // Lock-step: the world waits for its sensors. With every agent lost (a machine
+          // starved, or all killed) racing on would leave nothing to rejoin; after
+          // start_timeout_s without one the run ends with an error.
+          if (!all_lost_since_s_) {
+            all_lost_since_s_ = now_s;
+            Log(LogLevel::kWarn, "step " + std::to_string(step_) +
+                                     ": no agent alive; waiting up to " +
+                                     std::to_string(config_.network.start_timeout_s) +
+                                     " s (network.start_timeout_s) for one");
+          }
+          if (now_s - *all_lost_since_s_ >= config_.network.start_timeout_s) {
+            Finish(kExitRuntimeError, "no agent alive for " +
+                                          std::to_string(config_.network.start_timeout_s) +
+                                          " s (network.start_timeout_s) at step " +
+                                          std::to_string(step_));
+          }
+          return;
+        }
+        all_lost_since_s_.reset();
         if (!StepDone(now_s)) return;
         const StepIndex next = step_ + 1;
         if (next > config_.scenario.steps) {

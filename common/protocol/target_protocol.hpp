@@ -106,6 +106,7 @@ class TargetProtocol {
   Phase phase_ = Phase::kWaitingForAgents;
   double start_s_ = 0.0;
   double last_new_agent_s_ = 0.0;
+  std::optional<double> all_lost_since_s_;  // lock-step: when the last agent was lost
   StepIndex first_step_ = 1;
   StepIndex step_ = 0;          // the step published last
   double step_start_s_ = 0.0;   // when it was published (lock-step) / its tick (real time)

@@ -481,6 +481,46 @@ TEST_CASE("The target holds a faulted step until told to go, and leaves a killed
   }
 }
 
+TEST_CASE("In lock-step the target waits while no agent is alive, goes on when one is back, and "
+          "ends with an error after start_timeout_s without one",
+          "[protocol]") {
+  const std::string yaml =
+      "scenario: {steps: 30}\n"
+      "agents: {count: 2}\n"
+      "network: {start_timeout_s: 5}\n";
+  ScriptedNetwork net(yaml);
+  net.Start();
+  net.RunUntil(3);
+  const StepIndex at = net.target->current_step();
+  REQUIRE(at < 10);
+  // GIVEN both agents lost (frozen, so that they can come back)
+  net.frozen.insert(1);
+  net.frozen.insert(2);
+  net.Liveliness(deif::testing::kTarget, 1, false);
+  net.Liveliness(deif::testing::kTarget, 2, false);
+  // WHEN 4 s pass (less than start_timeout_s)
+  for (int i = 0; i < 40; ++i) net.AdvanceTime(0.1);
+  // THEN the target is still at the step it was at, and running
+  CHECK(net.target->current_step() == at);
+  CHECK_FALSE(net.target->finished());
+  // WHEN agent 1 is back, THEN the run goes on to the end
+  net.frozen.erase(1);
+  net.Liveliness(deif::testing::kTarget, 1, true);
+  net.RunUntil(30);
+  CHECK(net.target->current_step() == 30);
+  // GIVEN a second run in which both agents are lost for good
+  ScriptedNetwork dead(yaml);
+  dead.Start();
+  dead.RunUntil(3);
+  dead.Kill(1);
+  dead.Kill(2);
+  for (int i = 0; i < 60; ++i) dead.AdvanceTime(0.1);
+  // THEN after 5 s it ended with the runtime-error exit code, long before step 30
+  REQUIRE(dead.target->finished());
+  CHECK(dead.exit_codes.at(deif::testing::kTarget) == protocol::kExitRuntimeError);
+  CHECK(dead.target->current_step() < 30);
+}
+
 TEST_CASE("A negative noisy range is a measurement like any other", "[protocol][validation]") {
   // (Without the innovation gate: a range 2 m off the prediction would fail that one.)
   ScriptedNetwork net(std::string(kThreeAgents) + "filter: {innovation_gate_sigma: 0}\n");
