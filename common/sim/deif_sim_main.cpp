@@ -40,8 +40,10 @@ struct Options {
   std::string config_path;
   std::vector<std::string> overrides;
   std::string out_dir;
-  std::optional<std::uint64_t> seed;
-  std::optional<long long> steps;
+  // Kept as text and handed to the config parser as overrides, which judges them as it
+  // judges the keys (a number conversion here would wrap --seed -1 to 2^64 - 1).
+  std::optional<std::string> seed;
+  std::optional<std::string> steps;
   bool quiet = false;
   bool verbose = false;
   bool check_only = false;
@@ -203,8 +205,8 @@ int Run(const Options& options) {
   deif::Config config;
   try {
     std::vector<std::string> overrides = options.overrides;
-    if (options.seed) overrides.push_back("scenario.seed=" + std::to_string(*options.seed));
-    if (options.steps) overrides.push_back("scenario.steps=" + std::to_string(*options.steps));
+    if (options.seed) overrides.push_back("scenario.seed=" + *options.seed);
+    if (options.steps) overrides.push_back("scenario.steps=" + *options.steps);
     config = deif::LoadConfig(options.config_path, overrides);
     if (!options.out_dir.empty() && !options.check_only) CheckOutDir(options.out_dir);
   } catch (const deif::ConfigError& e) {

@@ -125,7 +125,6 @@ class SimNetwork {
   std::map<std::pair<NodeId, NodeId>, bool> believed_alive_;  // (reader, writer)
   std::map<NodeId, std::map<int, Message>> latest_state_;      // for a restarted target
   std::priority_queue<Queued, std::vector<Queued>, std::greater<Queued>> queue_;
-  double next_tick_s_ = 0.0;
   DropFilter drop_filter_;
   std::int64_t sent_ = 0;
   std::int64_t lost_first_try_ = 0;
