@@ -34,7 +34,7 @@ from . import artefacts, config, launcher, paths
 ROOT = paths.ROOT
 DEFAULT_CONFIG = os.path.join(ROOT, "configs", "default.yaml")
 RESULTS_DIR = os.path.join(ROOT, "bench", "results")
-SECTIONS = ("core", "pingpong", "lockstep", "failure", "wire", "network", "realtime")
+SECTIONS = ("core", "pingpong", "lockstep", "failure", "wire", "network", "realtime", "security")
 LOG_TIME = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\]")
 TARGET_DONE = re.compile(r"done at step (\d+) after ([\d.]+) s")
 
@@ -291,12 +291,12 @@ def target_log_rate(log_dir):
     return None
 
 
-def _start_observer(exe, cfg_path, n, steps, domain, run_name, work_dir):
+def _start_observer(exe, cfg_path, n, steps, domain, run_name, work_dir, overrides=()):
     """step_observer of the run: the run's effective config (its domain and leases) and name."""
     obs_cfg = os.path.join(work_dir, f"observer-{run_name}.yaml")
     with open(obs_cfg, "w") as f:
         f.write(config.canonical_yaml(cfg_path, [f"agents.count={n}", f"scenario.steps={steps}",
-                                                 f"network.domain_id={domain}"]))
+                                                 f"network.domain_id={domain}", *overrides]))
     observer = subprocess.Popen([exe, "--config", obs_cfg, "--run", run_name,
                                  "--timeout", str(120 + steps)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -319,14 +319,16 @@ def _stop_observer(observer, timed_out):
 
 
 def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFAULT_CONFIG,
-                 timeout_s=None):
+                 timeout_s=None, overrides=()):
     """Launch a target and n agents (deif.launcher), with the step observer when given, and
-    reduce the measurements. Returns a dict of figures."""
+    reduce the measurements. `overrides` (KEY=VALUE) go to every process, the observer's
+    included. Returns a dict of figures."""
     run_name = f"bench-n{n}-d{domain}-{random.randrange(16 ** 6):06x}"
     out_dir = os.path.join(work_dir, run_name)
     observer = None
     if observer_exe:
-        observer = _start_observer(observer_exe, config_path, n, steps, domain, run_name, work_dir)
+        observer = _start_observer(observer_exe, config_path, n, steps, domain, run_name, work_dir,
+                                   overrides)
     usage_before = resource.getrusage(resource.RUSAGE_CHILDREN)
     s0 = max(1, steps // 10)
     s1 = max(s0 + 1, steps - max(1, steps // 10))
@@ -337,7 +339,8 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
     try:
         with open(os.devnull, "w") as quiet:
             result = launcher.run(config_path, out_dir, agents=n, steps=steps, domain=domain,
-                                  run_name=run_name, progress=False, log=quiet, timeout_s=timeout_s)
+                                  run_name=run_name, progress=False, log=quiet, timeout_s=timeout_s,
+                                  overrides=list(overrides))
     except launcher.LaunchError as e:
         return {"n": n, "steps": steps, "domain": domain, "ok": False, "error": str(e)}
     finally:
@@ -642,6 +645,9 @@ def make_table(res):
     if res.get("realtime"):
         from .bench_network import realtime_table
         lines.append(realtime_table(res["realtime"]))
+    if res.get("security"):
+        from .bench_security import make_table as security_table
+        lines.append(security_table(res["security"]))
     core = (res.get("core") or {}).get("rows")
     if core:
         lines.append("**Core micro-benchmarks** (CPU time per call [us])")
@@ -782,6 +788,9 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
             from .bench_network import run_realtime_scale
             res["realtime"] = run_realtime_scale([16, 64] if quick else [16, 32, 64], domains, work_dir,
                                                  100 if quick else 200)
+        if "security" in sections:
+            from .bench_security import run_security
+            res["security"] = run_security(quick, domains, work_dir)
     finally:
         if not keep_runs:
             shutil.rmtree(work_dir, ignore_errors=True)
