@@ -1,7 +1,7 @@
 """Benchmarks of the whole system on one host (scripts/deif-bench; docs/BENCHMARKS.md).
 
 Sections (all by default; --only picks some): core, pingpong, lockstep, failure, wire,
-network, realtime (scripts/deif/bench_network.py).
+network, realtime (scripts/deif/bench_network.py), security (scripts/deif/bench_security.py).
 Executables come from ${DEIF_BUILD_DIR:-build}/bin: deif_agent, deif_target (through
 deif.launcher), core_bench, dds_pingpong, step_observer. A benchmark program that is missing,
 or older than its bench/<name>.cpp (it did not build from the current source), is skipped

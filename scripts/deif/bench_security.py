@@ -5,7 +5,7 @@ the repetitions and the ratio secure/plain. Reports figures; asserts nothing.
 
 Cases: N = 4 over shared memory (the default transport) and over UDPv4, N = 16 over UDPv4.
 A secure run of 16 agents over shared memory did not start on the 2-core machine of
-docs/BENCHMARKS.md (0 of 3 runs: docs/SECURITY.md, "Known limits"), so that case would
+docs/BENCHMARKS.md (0 of 3 runs; docs/SECURITY.md, "Known limits"), so that case would
 only measure timeouts.
 
 Every run is bench.lockstep_run (the step observer included). The secure runs use one
@@ -33,6 +33,8 @@ FIGURES = (
      lambda f: _times((f.get("steady") or {}).get("cpu_s_per_step"), 1e3), False),
     ("discovery_s", "launch to first step fused by all", "s",
      lambda f: (f.get("discovery_s") or {}).get("first_fused_all"), False),
+    # A run that lost agents on the way measures its breakdown, not the cost of security.
+    ("final_agents", "agents alive at the end", "agents", lambda f: f.get("final_agents"), True),
 )
 
 
@@ -111,7 +113,7 @@ def run_security(quick, domains, work_dir):
 def _fmt(v, unit):
     if v is None:
         return "-"
-    if unit == "steps/s":
+    if unit in ("steps/s", "agents"):
         return f"{v:.0f}"
     if unit == "s":
         return f"{v:.2f}"
