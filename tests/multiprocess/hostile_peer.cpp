@@ -158,6 +158,14 @@ int main(int argc, char** argv) {
          std::chrono::steady_clock::now() < give_up) {
     drain(20);
   }
+  // ... and until every agent's reader of the attacked topic matched this writer (agents do
+  // not read the truth): on a loaded machine a fixed pause was not always enough.
+  if (needs.count(attack) != 0 && needs.at(attack) != Topic::kTruth) {
+    while (node.MatchedReaders(needs.at(attack)) < config.agents.count &&
+           std::chrono::steady_clock::now() < give_up) {
+      drain(20);
+    }
+  }
   drain(300);
 
   const double nan = std::numeric_limits<double>::quiet_NaN();
