@@ -19,26 +19,15 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(0, os.path.join(ROOT, "scripts"))
+sys.path.insert(0, os.path.join(ROOT, "tests", "support"))
 from deif import artefacts  # noqa: E402  (the project's reader of run artefacts)
+from process_fixtures import domain, work  # noqa: E402,F401
 PYTHON = "/usr/bin/python3"
 DEIF_RUN = os.path.join(ROOT, "scripts", "deif-run")
 DEFAULT = os.path.join(ROOT, "configs", "default.yaml")
 BUILD = os.environ.get("DEIF_BUILD_DIR", os.path.join(ROOT, "build"))
 DEIF_SIM = os.path.join(BUILD, "bin", "deif_sim")
 AGENTS = 2
-
-
-@pytest.fixture
-def domain():
-    return int(os.environ.get("DEIF_TEST_DOMAIN", "190"))
-
-
-@pytest.fixture
-def work(tmp_path):
-    path = os.environ.get("DEIF_TEST_WORK") or str(tmp_path)
-    shutil.rmtree(path, ignore_errors=True)
-    os.makedirs(path)
-    return path
 
 
 def run_tool(argv):
