@@ -24,7 +24,9 @@ def every_step_written(run, agents, steps):
 
 def test_lockstep_10_percent_loss(work, domain):
     """Lock-step over three hosts with 10 % loss per host: the run completes and every agent
-    equals the in-process simulation at every step (loss is repaired; nobody is excluded)."""
+    equals the in-process simulation at every step, every step complete (loss is repaired).
+    (A peer's liveliness may lapse for a moment when a burst of its assertions is lost; the
+    `alive` column then shows it, but the roll call, and so the estimate, do not change.)"""
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, progress=False)
     assert res.ok, res.summary["processes"]
@@ -36,7 +38,7 @@ def test_lockstep_10_percent_loss(work, domain):
         ref = {r["step"]: r for r in rows(oracle, j)}
         for r in rows(res.out_dir, j):
             assert r["x_est"] == ref[r["step"]]["x_est"] and r["y_est"] == ref[r["step"]]["y_est"]
-            assert r["alive"] == "4" and r["complete"] == "1"
+            assert r["complete"] == "1"
 
 
 def test_realtime_10_percent_loss(work, domain):
