@@ -161,9 +161,6 @@ fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
 // nothing over shared memory (docs/FASTDDS_NOTES.md, "Shared memory and restarts"). A taken
 // port found anyway (two processes starting at once) is moved on by Fast DDS itself. -1
 // (Fast DDS picks) when every id in the domain's range has files.
-constexpr std::uint32_t kShmPortQueueCapacity = 8192;     // messages
-constexpr std::uint32_t kShmSegmentBytes = 4u << 20;       // 4 MiB per participant
-
 std::int32_t FreshShmParticipantId(int domain_id) {
   // RTPS default port mapping: PB 7400, DG 250, PG 2, d1 10 (metatraffic unicast), d3 11.
   constexpr int kPortBase = 7400, kDomainGain = 250, kIdGain = 2, kMetaOffset = 10;
@@ -204,13 +201,10 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
   if (qos.transport().user_transports.empty()) {
     qos.transport().use_builtin_transports = false;
     if (network.transport == TransportKind::kShm) {
-      auto shm = std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>();
-      // A full port drops what arrives, liveliness assertions included: Fast DDS's default
-      // (512 messages, 0.5 MiB) let a flood of garbage on one host starve healthy writers'
-      // liveliness (docs/FASTDDS_NOTES.md). UDP sockets here buffer 1 MiB each.
-      shm->port_queue_capacity(kShmPortQueueCapacity);
-      shm->segment_size(kShmSegmentBytes);
-      qos.transport().user_transports.push_back(shm);
+      // Fast DDS's default port (512 messages, 0.5 MiB segment): larger ones did not stop a
+      // local flood from starving a neighbour and cost memory (docs/FASTDDS_NOTES.md).
+      qos.transport().user_transports.push_back(
+          std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>());
       if (qos.wire_protocol().participant_id < 0) {
         qos.wire_protocol().participant_id = FreshShmParticipantId(network.domain_id);
       }
