@@ -158,9 +158,10 @@ int main(int argc, char** argv) {
          std::chrono::steady_clock::now() < give_up) {
     drain(20);
   }
-  // ... and until every agent's reader of the attacked topic matched this writer (agents do
-  // not read the truth): on a loaded machine a fixed pause was not always enough.
-  if (needs.count(attack) != 0 && needs.at(attack) != Topic::kTruth) {
+  // ... and, for the topics every agent reads (ranges, contributions), until every agent's
+  // reader matched this writer: on a loaded machine a fixed pause was not always enough.
+  if (needs.count(attack) != 0 &&
+      (needs.at(attack) == Topic::kRange || needs.at(attack) == Topic::kContribution)) {
     while (node.MatchedReaders(needs.at(attack)) < config.agents.count &&
            std::chrono::steady_clock::now() < give_up) {
       drain(20);
