@@ -805,29 +805,19 @@ void DropStaleAngles(DocNode* root, const std::vector<Override>& overrides) {
 
 // The keys of a section (or of a mapping nested in it) as a mapping, in schema order; a
 // dotted name ("security.enabled") opens a nested mapping.
-void EmitKeys(YAML::Emitter& out, const std::vector<std::pair<std::string, const KeySpec*>>& keys,
+void EmitKeys(YAML::Emitter& out, const NamedKeys& keys,
               const Config& config) {
   out << YAML::BeginMap;
-  std::vector<std::string> done;
-  for (const auto& [name, spec] : keys) {
-    const std::size_t dot = name.find('.');
-    if (dot == std::string::npos) {
-      out << YAML::Key << name << YAML::Value;
-      EmitKeyValue(out, *spec, &config, /*flow=*/false);
-      continue;
-    }
-    const std::string head = name.substr(0, dot);
-    if (std::find(done.begin(), done.end(), head) != done.end()) continue;
-    done.push_back(head);
-    std::vector<std::pair<std::string, const KeySpec*>> nested;
-    for (const auto& [other, other_spec] : keys) {
-      if (other.compare(0, head.size() + 1, head + ".") == 0) {
-        nested.emplace_back(other.substr(head.size() + 1), other_spec);
-      }
-    }
-    out << YAML::Key << head << YAML::Value;
-    EmitKeys(out, nested, config);
-  }
+  VisitNested(
+      keys,
+      [&](const std::string& name, const KeySpec& spec) {
+        out << YAML::Key << name << YAML::Value;
+        EmitKeyValue(out, spec, &config, /*flow=*/false);
+      },
+      [&](const std::string& head, const NamedKeys& nested) {
+        out << YAML::Key << head << YAML::Value;
+        EmitKeys(out, nested, config);
+      });
   out << YAML::EndMap;
 }
 

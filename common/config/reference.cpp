@@ -69,36 +69,25 @@ std::string Facts(const KeySpec& spec) {
 
 // The keys of a section at `indent`; a dotted name ("security.enabled") opens a nested
 // mapping.
-void YamlKeys(std::ostringstream& out, const std::vector<std::pair<std::string, const KeySpec*>>& keys,
-              const std::string& indent) {
-  std::vector<std::string> done;
-  for (const auto& [name, spec] : keys) {
-    const std::size_t dot = name.find('.');
-    if (dot == std::string::npos) {
-      Comment(out, indent + "# ", spec->description);
-      if (spec->type == KeyType::kRecordList) {
-        Comment(out, indent + "# ", Facts(*spec) + ". Each element:");
-        for (const KeySpec& field : spec->fields) {
-          Comment(out, indent + "#   ", field.name + " (" + Facts(field) + "): " + field.description);
+void YamlKeys(std::ostringstream& out, const NamedKeys& keys, const std::string& indent) {
+  VisitNested(
+      keys,
+      [&](const std::string& name, const KeySpec& spec) {
+        Comment(out, indent + "# ", spec.description);
+        if (spec.type == KeyType::kRecordList) {
+          Comment(out, indent + "# ", Facts(spec) + ". Each element:");
+          for (const KeySpec& field : spec.fields) {
+            Comment(out, indent + "#   ", field.name + " (" + Facts(field) + "): " + field.description);
+          }
+        } else {
+          Comment(out, indent + "# ", Facts(spec));
         }
-      } else {
-        Comment(out, indent + "# ", Facts(*spec));
-      }
-      out << indent << name << ": " << spec->default_yaml << "\n";
-      continue;
-    }
-    const std::string head = name.substr(0, dot);
-    if (std::find(done.begin(), done.end(), head) != done.end()) continue;
-    done.push_back(head);
-    std::vector<std::pair<std::string, const KeySpec*>> nested;
-    for (const auto& [other, other_spec] : keys) {
-      if (other.compare(0, head.size() + 1, head + ".") == 0) {
-        nested.emplace_back(other.substr(head.size() + 1), other_spec);
-      }
-    }
-    out << indent << head << ":\n";
-    YamlKeys(out, nested, indent + "  ");
-  }
+        out << indent << name << ": " << spec.default_yaml << "\n";
+      },
+      [&](const std::string& head, const NamedKeys& nested) {
+        out << indent << head << ":\n";
+        YamlKeys(out, nested, indent + "  ");
+      });
 }
 
 }  // namespace

@@ -929,6 +929,29 @@ const KeySpec* FindKey(std::string_view key) {
   return nullptr;
 }
 
+void VisitNested(const NamedKeys& keys,
+                 const std::function<void(const std::string&, const KeySpec&)>& leaf,
+                 const std::function<void(const std::string&, const NamedKeys&)>& group) {
+  std::vector<std::string> done;
+  for (const auto& [name, spec] : keys) {
+    const std::size_t dot = name.find('.');
+    if (dot == std::string::npos) {
+      leaf(name, *spec);
+      continue;
+    }
+    const std::string head = name.substr(0, dot);
+    if (std::find(done.begin(), done.end(), head) != done.end()) continue;
+    done.push_back(head);
+    NamedKeys nested;
+    for (const auto& [other, other_spec] : keys) {
+      if (other.compare(0, head.size() + 1, head + ".") == 0) {
+        nested.emplace_back(other.substr(head.size() + 1), other_spec);
+      }
+    }
+    group(head, nested);
+  }
+}
+
 std::vector<std::string> KeyPath(const KeySpec& spec) {
   std::vector<std::string> path;
   if (!spec.section.empty()) path.push_back(spec.section);

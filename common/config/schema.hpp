@@ -85,6 +85,16 @@ const KeySpec* FindKey(std::string_view key);
 // "enabled"}.
 std::vector<std::string> KeyPath(const KeySpec& spec);
 
+// Keys by their name within a section; a dotted name ("security.enabled") sits in a mapping
+// nested in it.
+using NamedKeys = std::vector<std::pair<std::string, const KeySpec*>>;
+// Walks `keys` in order as a document nests them: leaf(name, spec) for an undotted name;
+// group(head, nested) once per nested mapping, at its first key, with its keys renamed
+// relative to it. The YAML output and the reference share it.
+void VisitNested(const NamedKeys& keys,
+                 const std::function<void(const std::string&, const KeySpec&)>& leaf,
+                 const std::function<void(const std::string&, const NamedKeys&)>& group);
+
 // Calls visit(spec, yaml) for every key of Schema(), in order, with the key's effective
 // value in `config` as YAML text on one line (flow style for points, lists and records;
 // a string double-quoted). Executables build other formats (JSON) with it.
