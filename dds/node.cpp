@@ -28,6 +28,7 @@
 #include <fastdds/dds/subscriber/DataReaderListener.hpp>
 #include <fastdds/dds/subscriber/SampleInfo.hpp>
 #include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/log/Log.hpp>
 #include <fastdds/dds/topic/ContentFilteredTopic.hpp>
 #include <fastdds/dds/topic/IContentFilter.hpp>
 #include <fastdds/dds/topic/IContentFilterFactory.hpp>
@@ -151,6 +152,15 @@ fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
   times.heartbeatResponseDelay = DdsDuration(config.network.heartbeat_response_delay_s);
   times.initialAcknackDelay = DdsDuration(config.network.heartbeat_response_delay_s);
   return qos;
+}
+
+// DEIF_DDS_LOG=warning (or info) shows Fast DDS's own log on stderr; errors only otherwise.
+void EnableDdsLog() {
+  const char* level = std::getenv("DEIF_DDS_LOG");
+  if (level == nullptr) return;
+  const std::string l(level);
+  if (l == "warning") fdds::Log::SetVerbosity(fdds::Log::Warning);
+  if (l == "info") fdds::Log::SetVerbosity(fdds::Log::Info);
 }
 
 // A participant id whose shared-memory ports (/dev/shm/fastrtps_port<port>, the unicast
@@ -466,6 +476,7 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
   Impl& d = *impl_;
   d.run_name = run_name;
   d.secure = config.network.security.enabled;
+  EnableDdsLog();
   if (d.secure) {
     fdds::DomainParticipantQos qos = ParticipantQos(config, participant_name);
     ApplySecurity(qos, config, participant_name);

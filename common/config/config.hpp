@@ -85,6 +85,7 @@ struct NetworkConfig {
   int domain_id = 0;
   double liveliness_lease_s = 0.4;   // agent writers' MANUAL_BY_TOPIC lease [s]
   int liveliness_assertions_per_lease = 8;  // liveliness renewals sent per lease when idle
+  double liveliness_grace_s = 0.2;   // a lapse counts as a loss after this much more [s]
   double participant_lease_s = 5.0;  // participant lease duration [s]
   double participant_announcement_s = 0.5;
   double step_timeout_s = 2.0;       // lock-step: longest wait for contributions / states

@@ -476,6 +476,16 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "killed agent is excluded about one lease after its last write (measured 0.40 s "
            "with 0.4, 0.50 s with 0.5). Shorter is quicker but risks excluding an agent that "
            "is only starved of CPU (see configs/large.yaml).");
+  t.Add("liveliness_grace_s", [](Config& c) -> auto& { return c.network.liveliness_grace_s; })
+      .Default(0.2)
+      .AtLeast(0.0)
+      .AtMost(kMaxSeconds)
+      .Unit("s")
+      .Doc("A lapse of a writer's liveliness counts as a loss only if the writer stays silent "
+           "this much longer: a process starved of CPU, or a burst of lost packets, makes a "
+           "live peer lapse for a moment, and excluding it would change what is fused. A "
+           "killed agent is excluded about liveliness_lease_s + liveliness_grace_s after "
+           "its last write. 0: every lapse is a loss.");
   t.Add("liveliness_assertions_per_lease",
         [](Config& c) -> auto& { return c.network.liveliness_assertions_per_lease; })
       .Default(8)

@@ -35,7 +35,8 @@ AgentProtocol::AgentProtocol(const Config& config, AgentId id, Options options)
       gate_sigma_(options.innovation_gate_sigma > 0.0 ? options.innovation_gate_sigma
                                                       : config.filter.innovation_gate_sigma),
       position_m_(Vector2::Zero()),
-      angle_rad_(0.0) {
+      angle_rad_(0.0),
+      lapses_(config.network.liveliness_grace_s) {
   DEIF_THROW_UNLESS(ValidAgentId(id, config), "agent id " + std::to_string(id) +
                                                   " is outside 1.." +
                                                   std::to_string(config.agents.count));
@@ -74,6 +75,9 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
     target_writer_ = from;
     Log(LogLevel::kInfo, "target found (writer " + ToString(from) + ")");
   } else if (*target_writer_ != from) {
+    if (target_alive_ && lapses_.Confirm(*target_writer_)) {
+      ApplyLiveliness(*target_writer_, false, now_s);  // its lapse was within the grace
+    }
     if (target_alive_) {
       Reject("a second target", "second_target");
       return;
@@ -125,7 +129,7 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
     Reject("a process of another run", "other_run");
     return;
   }
-  if (!AcceptIdentity(msg, from)) return;
+  if (!AcceptIdentity(msg, from, now_s)) return;
   if (const char* reason = ValidateContributionMsg(msg, config_)) {
     Reject(who, reason);
     return;
@@ -138,6 +142,7 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
   if (!peer.last_position || peer.last_position->first < msg.step - 1) {
     peer.last_position = std::make_pair(msg.step - 1, msg.p_sensor);
   }
+  peer.last_step = std::max(peer.last_step, msg.step);
 
   Held held;
   held.msg = msg;
@@ -184,12 +189,20 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
 }
 
 void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
-  if (alive) {
-    alive_writers_.insert(writer);
-  } else {
-    alive_writers_.erase(writer);
-  }
   if (finished_ || !started_) return;
+  if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s)) {
+    ApplyLiveliness(writer, *change, now_s);
+  }
+}
+
+void AgentProtocol::ConfirmLapses(double now_s) {
+  for (const SenderKey& writer : lapses_.Due(now_s)) {
+    if (finished_) return;
+    ApplyLiveliness(writer, false, now_s);
+  }
+}
+
+void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s) {
   if (target_writer_ && writer == *target_writer_) {
     target_alive_ = alive;
     LogOnce(alive ? LogLevel::kInfo : LogLevel::kWarn,
@@ -206,6 +219,10 @@ void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, doub
   const std::string members = std::to_string(Members().size());
   if (alive) {
     Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " is alive again; members now " + members);
+  } else if (peer.last_step >= config_.scenario.steps) {
+    // Its contribution to the last step arrived: it finished the run and left, it was not
+    // lost (a peer that is behind sees the others leave first).
+    Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " left after the last step; members now " + members);
   } else {
     Log(LogLevel::kWarn, "agent " + std::to_string(bound->second) + " lost (liveliness); members now " + members);
   }
@@ -225,6 +242,7 @@ void AgentProtocol::OnPeersMatched(int matched, double now_s) {
 
 void AgentProtocol::OnTimer(double now_s) {
   if (finished_ || !started_) return;
+  ConfirmLapses(now_s);
   Advance(now_s);
   if (finished_) return;
   const double silent_s = now_s - last_target_contact_s_;
@@ -254,6 +272,7 @@ std::optional<double> AgentProtocol::NextDeadline() const {
     t = std::min(t, ExpectedStart(written_ + 1) +
                         config_.network.deadline_fraction * config_.scenario.period_s);
   }
+  if (const std::optional<double> lapse = lapses_.NextDue()) t = std::min(t, *lapse);
   if (!std::isfinite(t)) return std::nullopt;
   return t;
 }
@@ -751,7 +770,8 @@ void AgentProtocol::Trim() {
 // ---------------------------------------------------------------------------------------
 // Identity, counting, output
 
-bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& from) {
+bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& from,
+                                   double now_s) {
   const std::string who = "agent " + std::to_string(msg.agent_id);
   if (!ValidAgentId(msg.agent_id, config_)) {
     Reject(who, "unknown_agent_id");
@@ -775,7 +795,9 @@ bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& 
   }
   if (*peer.writer == from) return true;
   // Another writer claims an id: refused while the bound writer lives (impersonation);
-  // once it is gone, the new writer is that agent restarted.
+  // once it is gone, the new writer is that agent restarted. A bound writer whose lapse is
+  // within its grace is taken as gone.
+  if (peer.alive && lapses_.Confirm(*peer.writer)) ApplyLiveliness(*peer.writer, false, now_s);
   if (peer.alive) {
     Reject(who, "agent_id_clash");
     return false;

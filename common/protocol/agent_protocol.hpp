@@ -31,6 +31,7 @@
 #include "common/artefacts/artefacts.hpp"
 #include "common/config/config.hpp"
 #include "common/core/filters.hpp"
+#include "common/protocol/lapse_filter.hpp"
 #include "common/protocol/messages.hpp"
 
 namespace deif::protocol {
@@ -127,6 +128,10 @@ class AgentProtocol {
   std::set<AgentId> Members() const;
 
  private:
+  // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
+  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // Acts on the held losses whose grace is over.
+  void ConfirmLapses(double now_s);
   // A validated contribution held for its step.
   struct Held {
     ContributionMsg msg;
@@ -156,6 +161,7 @@ class AgentProtocol {
     bool alive = false;
     double lost_at_s = 0.0;  // when it was last seen lost
     std::optional<std::pair<StepIndex, Vector2>> last_position;  // (step, position)
+    StepIndex last_step = 0;  // of its newest valid contribution
   };
   struct PendingRange {
     RangeMsg msg;
@@ -180,7 +186,7 @@ class AgentProtocol {
   void Trim();
   void SetRollCall(Record& r, std::vector<AgentId> roll_call);
 
-  bool AcceptIdentity(const ContributionMsg& msg, const SenderKey& from);
+  bool AcceptIdentity(const ContributionMsg& msg, const SenderKey& from, double now_s);
   void Reject(const std::string& who, const std::string& reason);
   void Drop(const std::string& who, const std::string& reason);
   void Log(LogLevel level, std::string text);
@@ -227,7 +233,7 @@ class AgentProtocol {
   // Peers and the target.
   std::map<AgentId, Peer> peers_;
   std::map<SenderKey, AgentId> writer_ids_;
-  std::set<SenderKey> alive_writers_;
+  LapseFilter lapses_;  // liveliness lapses held for network.liveliness_grace_s
   std::optional<SenderKey> target_writer_;
   bool target_alive_ = false;  // the bound target writer: alive until seen lost
   int matched_ = -1;

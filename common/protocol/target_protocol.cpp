@@ -17,7 +17,7 @@ std::string Describe(const FaultConfig& fault) {
 }  // namespace
 
 TargetProtocol::TargetProtocol(const Config& config, Options options)
-    : config_(config), options_(options), core_(config) {}
+    : config_(config), options_(options), core_(config), lapses_(config.network.liveliness_grace_s) {}
 
 void TargetProtocol::Start(double now_s) {
   start_s_ = now_s;
@@ -43,6 +43,9 @@ void TargetProtocol::OnState(const StateMsg& msg, const SenderKey& from, double 
     writer_ids_[from] = msg.agent_id;
     agent.instance_token = msg.instance_token;
   } else if (*agent.writer != from) {
+    if (agent.alive && lapses_.Confirm(*agent.writer)) {
+      ApplyLiveliness(*agent.writer, false, now_s);  // its lapse was within the grace
+    }
     if (agent.alive) {
       Reject(who, "agent_id_clash");  // another live writer holds this id
       return;
@@ -64,11 +67,16 @@ void TargetProtocol::OnState(const StateMsg& msg, const SenderKey& from, double 
 }
 
 void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
-  if (alive) {
-    alive_writers_.insert(writer);
-  } else {
-    alive_writers_.erase(writer);
+  if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s)) {
+    ApplyLiveliness(writer, *change, now_s);
   }
+}
+
+void TargetProtocol::ConfirmLapses(double now_s) {
+  for (const SenderKey& writer : lapses_.Due(now_s)) ApplyLiveliness(writer, false, now_s);
+}
+
+void TargetProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s) {
   auto bound = writer_ids_.find(writer);
   if (bound == writer_ids_.end()) return;
   Agent& agent = agents_[bound->second];
@@ -91,7 +99,10 @@ void TargetProtocol::OnGo(StepIndex step, double now_s) {
   Advance(now_s);
 }
 
-void TargetProtocol::OnTimer(double now_s) { Advance(now_s); }
+void TargetProtocol::OnTimer(double now_s) {
+  ConfirmLapses(now_s);
+  Advance(now_s);
+}
 
 std::set<AgentId> TargetProtocol::AliveAgents() const {
   std::set<AgentId> alive;
@@ -108,6 +119,13 @@ std::vector<TargetAction> TargetProtocol::TakeActions() {
 }
 
 std::optional<double> TargetProtocol::NextDeadline() const {
+  const std::optional<double> phase = PhaseDeadline();
+  const std::optional<double> lapse = phase_ == Phase::kDone ? std::nullopt : lapses_.NextDue();
+  if (phase && lapse) return std::min(*phase, *lapse);
+  return phase ? phase : lapse;
+}
+
+std::optional<double> TargetProtocol::PhaseDeadline() const {
   const double settle_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
   switch (phase_) {
     case Phase::kWaitingForAgents: {

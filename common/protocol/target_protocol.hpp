@@ -15,6 +15,7 @@
 #include "common/artefacts/artefacts.hpp"
 #include "common/config/config.hpp"
 #include "common/protocol/agent_protocol.hpp"
+#include "common/protocol/lapse_filter.hpp"
 #include "common/protocol/messages.hpp"
 #include "common/protocol/target_core.hpp"
 
@@ -79,6 +80,11 @@ class TargetProtocol {
   const std::map<std::string, std::int64_t>& rejected_by_reason() const { return rejected_; }
 
  private:
+  // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
+  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // Acts on the held losses whose grace is over.
+  void ConfirmLapses(double now_s);
+  std::optional<double> PhaseDeadline() const;
   enum class Phase { kWaitingForAgents, kStepping, kHolding, kApplyingFaults, kDone };
   struct Agent {
     std::optional<SenderKey> writer;
@@ -113,7 +119,7 @@ class TargetProtocol {
   double hold_deadline_s_ = 0.0;
   std::map<AgentId, Agent> agents_;
   std::map<SenderKey, AgentId> writer_ids_;
-  std::set<SenderKey> alive_writers_;
+  LapseFilter lapses_;  // liveliness lapses held for network.liveliness_grace_s
   std::map<std::string, std::int64_t> rejected_;
   std::set<std::string> logged_once_;
 };

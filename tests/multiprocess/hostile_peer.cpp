@@ -88,6 +88,7 @@ int main(int argc, char** argv) {
   std::string name = "hostile";
   std::string security;
   int claim = 1;
+  int peers = -1;
   bool linger = false;
   app.add_option("--config", config_path, "the run's config.yaml")->required();
   app.add_option("--run", run_name, "the run's name (\"\": no run partition)")->required();
@@ -97,6 +98,7 @@ int main(int argc, char** argv) {
   app.add_option("--name", name, "participant name; with security it picks the files (agent-2, ...)");
   app.add_option("--security", security, "DIR: security with the files in DIR; off: none");
   app.add_option("--claim", claim, "the agent id an impersonation claims");
+  app.add_option("--peers", peers, "how many live agents to wait for (default: agents.count)");
   app.add_flag("--linger", linger, "when done, stay in the domain until SIGTERM or SIGINT");
   CLI11_PARSE(app, argc, argv);
 
@@ -120,6 +122,7 @@ int main(int argc, char** argv) {
     return "?";
   };
   std::map<Topic, bool> can_write;
+  std::map<Topic, bool> can_read;
   for (Topic t : {Topic::kContribution, Topic::kTruth, Topic::kRange, Topic::kAgentState}) {
     try {
       node.AddWriter(t);
@@ -130,6 +133,7 @@ int main(int argc, char** argv) {
     }
     try {
       node.AddReader({t, {}});
+      can_read[t] = true;
     } catch (const std::exception&) {
       std::printf("refused reading %s\n", topic_name(t));
     }
@@ -147,14 +151,20 @@ int main(int argc, char** argv) {
   }
   node.StartLiveliness();
   long received = 0;
+  // Reads for `ms` milliseconds (Wait returns at the first batch of samples).
   const auto drain = [&](int ms) {
-    received += static_cast<long>(
-        node.Wait(std::chrono::steady_clock::now() + std::chrono::milliseconds(ms)).size());
+    const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(ms);
+    while (std::chrono::steady_clock::now() < until) {
+      received += static_cast<long>(node.Wait(until).size());
+    }
   };
   // Wait until this participant has discovered every agent (so every agent receives every
   // sample), then a little more for the agents to discover it.
+  // (A node's counts include its own endpoints: its reader matches its own writer.)
+  const int live_agents = peers >= 0 ? peers : config.agents.count;
   const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(10);
-  while (node.MatchedWriters(deif::dds::Topic::kContribution) < config.agents.count &&
+  const int own_writer = can_write[Topic::kContribution] ? 1 : 0;
+  while (node.MatchedWriters(deif::dds::Topic::kContribution) < live_agents + own_writer &&
          std::chrono::steady_clock::now() < give_up) {
     drain(20);
   }
@@ -162,9 +172,13 @@ int main(int argc, char** argv) {
   // reader matched this writer: on a loaded machine a fixed pause was not always enough.
   if (needs.count(attack) != 0 &&
       (needs.at(attack) == Topic::kRange || needs.at(attack) == Topic::kContribution)) {
-    while (node.MatchedReaders(needs.at(attack)) < config.agents.count &&
+    const int own_reader = can_read[needs.at(attack)] ? 1 : 0;
+    while (node.MatchedReaders(needs.at(attack)) < live_agents + own_reader &&
            std::chrono::steady_clock::now() < give_up) {
       drain(20);
+    }
+    if (node.MatchedReaders(needs.at(attack)) < live_agents + own_reader) {
+      std::fprintf(stderr, "deif_hostile: warning: not every agent's reader matched in 10 s\n");
     }
   }
   drain(300);
@@ -285,8 +299,16 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "deif_hostile: error: unknown --attack '%s'\n", attack.c_str());
     return 2;
   }
-  drain(500);
-  std::printf("sent %ld %s\nreceived %ld\n", sent, attack.c_str(), received);
+  std::printf("sent %ld %s\n", sent, attack.c_str());
+  if (!run_dir.empty()) std::printf("done at step %lld\n", CurrentStep(run_dir));
+  std::fflush(stdout);
+  // Every matched reader acknowledges what was sent (a lost sample is repaired first; a
+  // reader of a killed agent never acknowledges, hence the bound), then a little more reading.
+  if (!node.WaitForAcknowledgments(3.0)) {
+    std::fprintf(stderr, "deif_hostile: note: not every sample was acknowledged in 3 s\n");
+  }
+  drain(200);
+  std::printf("received %ld\n", received);
   std::fflush(stdout);
   Linger(linger, node);
   return 0;

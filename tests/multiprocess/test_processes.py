@@ -199,7 +199,7 @@ def test_duplicate_id(work, domain):
 
 
 def hostile(work, domain, attack, config=SLOW_CIRCLE, agents=4, steps=1500, faults=(), at_step=30,
-            seconds=None, overrides=()):
+            seconds=None, overrides=(), live=None):
     """A run with a hostile peer in its partition; returns (result, hostile's stdout)."""
     lau = launcher.Launcher(config, os.path.join(work, "run"), agents=agents, steps=steps,
                             domain=domain, faults=list(faults), overrides=list(overrides),
@@ -211,14 +211,19 @@ def hostile(work, domain, attack, config=SLOW_CIRCLE, agents=4, steps=1500, faul
                 lau.config_path, "--run", lau.run_name, "--attack", attack, "--follow", lau.out_dir]
         if seconds:
             argv += ["--seconds", str(seconds)]
+        if live is not None:  # agents alive when it attacks (it waits to hear each)
+            argv += ["--peers", str(live)]
         h = subprocess.run(argv, capture_output=True, text=True, timeout=120)
-        hostile_done = lau.current_step()
+        with open(os.path.join(work, "hostile.log"), "w") as f:  # kept for a failure's reader
+            f.write(h.stdout + h.stderr)
         lau.wait()
     finally:
         lau.terminate_all()
         res = lau.finish()
     assert h.returncode == 0, h.stderr[-800:]
-    assert hostile_done < steps, "the run ended before the hostile peer was done"
+    done = re.search(r"^done at step (\d+)$", h.stdout, re.M)
+    assert done, h.stdout[-800:]
+    assert int(done.group(1)) < steps, "the run ended before the hostile peer was done"
     return res, h.stdout
 
 
@@ -227,7 +232,8 @@ def test_hostile_contributions(work, domain):
     impersonating and duplicate contributions, under live ids and under the id of an agent
     killed at step 5: every one is counted by every agent, none is fused (the estimates equal
     the simulation bit for bit)."""
-    res, out = hostile(work, domain, "contributions", agents=5, faults=[launcher.Fault(5, "kill", 5)])
+    res, out = hostile(work, domain, "contributions", agents=5, faults=[launcher.Fault(5, "kill", 5)],
+                       live=4)
     sent = int(re.search(r"sent (\d+)", out).group(1))
     assert res.ok, res.summary["processes"]
     for j in range(1, 5):

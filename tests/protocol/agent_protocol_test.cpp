@@ -3,6 +3,7 @@
 // missed information come back into exact agreement.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -355,14 +356,76 @@ TEST_CASE("A lost member is not waited for in lock-step", "[protocol]") {
   };
   net.Pump(from3);
   CHECK(net.agents.at(1)->last_written_step() == 2);  // waiting for it
-  // WHEN agents 1 and 2 see it lost, during the step
+  // WHEN agents 1 and 2 see it lost, during the step, and it stays silent for the grace
   net.AdvanceTime(0.1);
   net.Liveliness(1, 3, false);
   net.Liveliness(2, 3, false);
-  // THEN agents 1 and 2 wrote step 3 at once, with two contributions
+  net.AdvanceTime(net.config.network.liveliness_grace_s);  // 0.3 s: before the step timeout
+  // THEN agents 1 and 2 wrote step 3 then, with two contributions
   REQUIRE(net.agents.at(1)->last_written_step() >= 3);
   CHECK(net.rows.at(1)[2].fused == 2);
   CHECK(net.rows.at(1)[2].alive == 2);
+}
+
+TEST_CASE("A liveliness lapse shorter than network.liveliness_grace_s excludes nobody: the "
+          "member is waited for and fused", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(2);
+  // GIVEN agent 3's contribution to step 3 is delayed, and agent 1 sees its liveliness lapse
+  const auto from3 = [](const Envelope& e) {
+    const auto* c = std::get_if<protocol::ContributionMsg>(&e.message);
+    return e.from == 3 && c != nullptr && c->step == 3;
+  };
+  net.Pump(from3);
+  net.Liveliness(1, 3, false);
+  net.AdvanceTime(0.5 * net.config.network.liveliness_grace_s);
+  // WHEN the lapse ends within the grace, and the contribution arrives
+  net.Liveliness(1, 3, true);
+  net.AdvanceTime(net.config.network.liveliness_grace_s);  // past the lapse's grace
+  CHECK(net.agents.at(1)->last_written_step() == 2);  // still waiting for agent 3
+  net.ReleaseHeld();
+  net.RunUntil(5);
+  // THEN agent 1 fused all three at step 3, never excluded agent 3, and agrees with the others
+  CHECK(net.rows.at(1)[2].fused == 3);
+  CHECK(net.rows.at(1)[2].alive == 3);
+  CHECK(net.agents.at(1)->Members().size() == 3);
+  for (StepIndex k = 1; k <= 5; ++k) CHECK(AllAgreeAt(net, k));
+  const auto& log = net.logs.at(1);
+  CHECK(std::none_of(log.begin(), log.end(),
+                     [](const std::string& l) { return l.find("lost") != std::string::npos; }));
+}
+
+TEST_CASE("A peer that leaves after its contribution to the last step is logged as finished, "
+          "not lost", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);  // 30 steps
+  net.Start();
+  // GIVEN agent 3 is behind at the last step (its range is held back), and agent 2's
+  // contribution to the last step has not reached it
+  const auto held = [](const Envelope& e) {
+    const auto* r = std::get_if<protocol::RangeMsg>(&e.message);
+    return (e.to == 3 && r != nullptr && r->step == 30) || IsContribution(e, 2, 3, 30);
+  };
+  for (int i = 0; i < 10000 && !(net.agents.at(1)->finished() && net.agents.at(2)->finished()); ++i) {
+    net.Pump(held);
+    net.AdvanceTime(0.01);
+  }
+  REQUIRE(net.agents.at(1)->finished());
+  REQUIRE(net.agents.at(2)->finished());
+  REQUIRE(net.agents.at(3)->last_written_step() == 29);
+  REQUIRE_FALSE(net.agents.at(3)->finished());
+  // WHEN agents 1 and 2 leave
+  net.Liveliness(3, 1, false);
+  net.Liveliness(3, 2, false);
+  net.AdvanceTime(net.config.network.liveliness_grace_s);
+  // THEN agent 1, whose last contribution arrived, left; agent 2, whose did not, is lost
+  const auto& log = net.logs.at(3);
+  const auto has = [&](const std::string& text) {
+    return std::any_of(log.begin(), log.end(), [&](const std::string& l) { return l.find(text) != std::string::npos; });
+  };
+  CHECK(has("agent 1 left after the last step"));
+  CHECK_FALSE(has("agent 1 lost"));
+  CHECK(has("agent 2 lost (liveliness)"));
 }
 
 TEST_CASE("An agent that joins mid-run adopts the lowest-id contributor's posterior and agrees",

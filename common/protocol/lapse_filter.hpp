@@ -1,0 +1,39 @@
+// Slow is not gone: a liveliness lapse reported by DDS counts as a loss only once the writer
+// has stayed silent for network.liveliness_grace_s more (docs/PROTOCOL.md, "Slow is not
+// gone"). A process starved of CPU fires its lease timers before it reads the assertions
+// queued meanwhile, and a burst of lost packets can silence a live writer for a lease; both
+// come back within moments, and excluding such a peer would change what is fused.
+#pragma once
+
+#include <map>
+#include <optional>
+#include <vector>
+
+#include "common/protocol/messages.hpp"
+
+namespace deif::protocol {
+
+class LapseFilter {
+ public:
+  explicit LapseFilter(double grace_s) : grace_s_(grace_s) {}
+
+  // A liveliness change as DDS reported it. Returns the change to act on now: a loss is
+  // held for the grace (nullopt); a return within the grace cancels it (nullopt).
+  std::optional<bool> Report(const SenderKey& writer, bool alive, double now_s);
+  // The held losses whose grace is over, oldest first: act on each as a loss.
+  std::vector<SenderKey> Due(double now_s);
+  // Ends the grace of `writer`'s held loss at once (another writer took its identity, so it
+  // is gone). True if one was held: act on it as a loss.
+  bool Confirm(const SenderKey& writer) { return held_.erase(writer) > 0; }
+  // When the next held loss is due (nullopt: none held).
+  std::optional<double> NextDue() const;
+  // Lapses that ended within the grace (never acted on).
+  long ignored() const { return ignored_; }
+
+ private:
+  double grace_s_;
+  std::map<SenderKey, double> held_;  // writer -> when its loss is due
+  long ignored_ = 0;
+};
+
+}  // namespace deif::protocol

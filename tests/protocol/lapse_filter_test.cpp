@@ -1,0 +1,63 @@
+// The lapse filter (docs/PROTOCOL.md, "Slow is not gone").
+#include <catch2/catch.hpp>
+
+#include "common/protocol/lapse_filter.hpp"
+
+using deif::protocol::LapseFilter;
+using deif::protocol::SenderKey;
+
+namespace {
+SenderKey Writer(std::uint8_t n) {
+  SenderKey key{};
+  key[0] = n;
+  return key;
+}
+}  // namespace
+
+TEST_CASE("A lapse is a loss only once the writer stayed silent for the grace", "[protocol][lapse]") {
+  LapseFilter filter(0.2);
+  CHECK_FALSE(filter.Report(Writer(1), false, 10.0).has_value());  // held
+  CHECK(filter.NextDue() == Approx(10.2));
+  CHECK(filter.Due(10.19).empty());
+  const auto due = filter.Due(10.2);
+  REQUIRE(due.size() == 1);
+  CHECK(due[0] == Writer(1));
+  CHECK_FALSE(filter.NextDue().has_value());
+  // Alive again after the loss was acted on: a return to act on.
+  const auto back = filter.Report(Writer(1), true, 11.0);
+  REQUIRE(back.has_value());
+  CHECK(*back);
+  CHECK(filter.ignored() == 0);
+}
+
+TEST_CASE("A lapse that ends within the grace is never acted on", "[protocol][lapse]") {
+  LapseFilter filter(0.2);
+  CHECK_FALSE(filter.Report(Writer(1), false, 10.0).has_value());
+  CHECK_FALSE(filter.Report(Writer(1), true, 10.1).has_value());
+  CHECK(filter.Due(100.0).empty());
+  CHECK(filter.ignored() == 1);
+}
+
+TEST_CASE("Held losses come due in the order they lapsed; a repeated report keeps the first",
+          "[protocol][lapse]") {
+  LapseFilter filter(0.2);
+  filter.Report(Writer(2), false, 10.05);
+  filter.Report(Writer(1), false, 10.0);
+  filter.Report(Writer(1), false, 10.1);  // a second report of the same lapse
+  const auto due = filter.Due(10.3);
+  REQUIRE(due.size() == 2);
+  CHECK(due[0] == Writer(1));
+  CHECK(due[1] == Writer(2));
+}
+
+TEST_CASE("Confirm ends a held lapse at once; a grace of 0 acts on every lapse", "[protocol][lapse]") {
+  LapseFilter filter(0.2);
+  filter.Report(Writer(1), false, 10.0);
+  CHECK(filter.Confirm(Writer(1)));
+  CHECK_FALSE(filter.Confirm(Writer(1)));
+  CHECK(filter.Due(100.0).empty());
+  LapseFilter none(0.0);
+  const auto now = none.Report(Writer(1), false, 10.0);
+  REQUIRE(now.has_value());
+  CHECK_FALSE(*now);
+}
