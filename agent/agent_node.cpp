@@ -33,7 +33,8 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
-  node_.AddReader({dds::Topic::kContribution, {}});
+  // Garbage under ids no agent of the run has is dropped as it arrives (and counted).
+  node_.AddReader({dds::Topic::kContribution, {}, std::make_pair(AgentId{1}, AgentId{config_.agents.count})});
   node_.AddReader({dds::Topic::kAgentState, id_});   // only states claiming this id: duplicates
   if (node_.AuthenticationRestarts() > 0) {
     context_.log->warn("authentication with a peer stalled at start; participant created anew {} "
@@ -100,9 +101,11 @@ int AgentNode::Run() {
     protocol_.OnPeersMatched(std::min(node_.MatchedWriters(dds::Topic::kContribution),
                                       node_.MatchedReaders(dds::Topic::kContribution)),
                              now_s);
+    protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
   }
+  protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
   if (stop_requested_) {
     context_.log->info("stopped after step {}", protocol_.last_written_step());
     WriteCounters();

@@ -342,29 +342,45 @@ class SecureListener final : public fdds::DomainParticipantListener {
   Clock::time_point last_discovery_{};
 };
 
-// A content filter on the key, "agent_id = %0", that reads the id straight from the
-// serialized sample: every keyed type of idl/deif.idl starts with its key, a 32-bit
-// agent_id, right after the 4-byte encapsulation header. (Fast DDS's SQL filter would need
-// TypeObjects, which the plain XCDR1 types, readable by other vendors, do not have.) A
-// writer whose participant knows this filter class evaluates it before sending.
+// A content filter on the key that reads the id straight from the serialized sample:
+// every keyed type of idl/deif.idl starts with its key, a 32-bit agent_id, right after the
+// 4-byte encapsulation header. (Fast DDS's SQL filter would need TypeObjects, which the
+// plain XCDR1 types, readable by other vendors, do not have.) Two expressions:
+// "agent_id = %0" (one agent's samples) and "agent_id BETWEEN %0 AND %1" (the ids of the
+// run: garbage under any other id is dropped as it arrives, before it is stored, woken for
+// or deserialized; docs/PROTOCOL.md, "Peer data is untrusted"). A writer whose participant
+// knows this filter class evaluates it before sending.
 constexpr const char* kAgentIdFilterClass = "DEIF_AGENT_ID";
 
 class AgentIdFilter final : public fdds::IContentFilter {
  public:
-  explicit AgentIdFilter(std::int32_t id) : id_(id) {}
+  // Samples outside [lo, hi] that a reader of this participant drops are counted in
+  // `dropped` when it is not null (the BETWEEN form).
+  AgentIdFilter(std::int32_t lo, std::int32_t hi, std::atomic<long>* dropped,
+                const eprosima::fastrtps::rtps::GuidPrefix_t& local)
+      : lo_(lo), hi_(hi), dropped_(dropped), local_(local) {}
   virtual ~AgentIdFilter() = default;
   bool evaluate(const SerializedPayload& payload, const FilterSampleInfo&,
-                const GUID_t&) const override {
-    if (payload.length < 8 || payload.data == nullptr) return false;
-    const bool little_endian = payload.data[1] == 0x01;
-    std::uint32_t raw = 0;
-    for (int i = 0; i < 4; ++i) {
-      const std::uint32_t byte = payload.data[4 + i];
-      raw |= little_endian ? byte << (8 * i) : byte << (8 * (3 - i));
+                const GUID_t& reader) const override {
+    bool pass = false;
+    if (payload.length >= 8 && payload.data != nullptr) {
+      const bool little_endian = payload.data[1] == 0x01;
+      std::uint32_t raw = 0;
+      for (int i = 0; i < 4; ++i) {
+        const std::uint32_t byte = payload.data[4 + i];
+        raw |= little_endian ? byte << (8 * i) : byte << (8 * (3 - i));
+      }
+      const auto id = static_cast<std::int32_t>(raw);
+      pass = id >= lo_ && id <= hi_;
     }
-    return static_cast<std::int32_t>(raw) == id_;
+    if (!pass && dropped_ != nullptr && reader.guidPrefix == local_) ++*dropped_;
+    return pass;
   }
-  std::int32_t id_;
+
+ private:
+  std::int32_t lo_, hi_;
+  std::atomic<long>* dropped_;
+  eprosima::fastrtps::rtps::GuidPrefix_t local_;
 };
 
 class AgentIdFilterFactory : public fdds::IContentFilterFactory {
@@ -372,21 +388,28 @@ class AgentIdFilterFactory : public fdds::IContentFilterFactory {
   ReturnCode_t create_content_filter(const char*, const char*, const fdds::TopicDataType*,
                                      const char* expression, const ParameterSeq& parameters,
                                      fdds::IContentFilter*& filter) override {
-    if (parameters.length() != 1) return ReturnCode_t::RETCODE_BAD_PARAMETER;
-    if (expression != nullptr && std::string(expression) != "agent_id = %0") {
-      return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    const std::string e = expression == nullptr ? "agent_id = %0" : expression;
+    const bool between = e == "agent_id BETWEEN %0 AND %1";
+    if (!between && e != "agent_id = %0") return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    if (parameters.length() != (between ? 2 : 1)) return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    long values[2] = {0, 0};
+    for (int i = 0; i < parameters.length(); ++i) {
+      char* end = nullptr;
+      values[i] = std::strtol(parameters[i], &end, 10);
+      if (end == parameters[i] || *end != '\0') return ReturnCode_t::RETCODE_BAD_PARAMETER;
     }
-    char* end = nullptr;
-    const long id = std::strtol(parameters[0], &end, 10);
-    if (end == parameters[0] || *end != '\0') return ReturnCode_t::RETCODE_BAD_PARAMETER;
+    if (!between) values[1] = values[0];
     delete static_cast<AgentIdFilter*>(filter);
-    filter = new AgentIdFilter(static_cast<std::int32_t>(id));
+    filter = new AgentIdFilter(static_cast<std::int32_t>(values[0]), static_cast<std::int32_t>(values[1]),
+                               between ? &dropped : nullptr, local);
     return ReturnCode_t::RETCODE_OK;
   }
   ReturnCode_t delete_content_filter(const char*, fdds::IContentFilter* filter) override {
     delete static_cast<AgentIdFilter*>(filter);
     return ReturnCode_t::RETCODE_OK;
   }
+  std::atomic<long> dropped{0};                   // by this participant's BETWEEN readers
+  eprosima::fastrtps::rtps::GuidPrefix_t local;  // this participant
 };
 
 // Reports every change of a remote writer's liveliness, one call each, from a DDS thread.
@@ -455,6 +478,7 @@ struct Node::Impl {
   SecureListener secure_listener;  // the participant's listener when secure
   int authentication_restarts = 0;
   AgentIdFilterFactory filter_factory;  // registered with the participant
+  bool filters_registered = true;
   fdds::WaitSet waitset;
   fdds::GuardCondition guard;
 
@@ -505,6 +529,7 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
                                              "' (does the governance cover this domain?)"
                                        : std::string()));
   }
+  d.filter_factory.local = d.participant->guid().guidPrefix;
   if (d.participant->register_content_filter_factory(kAgentIdFilterClass, &d.filter_factory) !=
       ReturnCode_t::RETCODE_OK) {
     throw std::runtime_error("cannot register the agent id content filter");
@@ -561,7 +586,7 @@ Node::~Node() {
   d.waitset.detach_condition(d.guard);
   // Entities before the listeners they point to (the listeners are members of d).
   d.participant->delete_contained_entities();
-  d.participant->unregister_content_filter_factory(kAgentIdFilterClass);
+  if (d.filters_registered) d.participant->unregister_content_filter_factory(kAgentIdFilterClass);
   fdds::DomainParticipantFactory::get_instance()->delete_participant(d.participant);
 }
 
@@ -586,12 +611,22 @@ void Node::MakePassive() {
 void Node::AddReader(const ReaderSpec& spec) {
   Impl& d = *impl_;
   fdds::TopicDescription* description = d.topics.at(spec.topic);
-  if (spec.only_id) {
-    const std::string name = std::string(d.topics.at(spec.topic)->get_name()) + "_for_" +
-                             std::to_string(*spec.only_id);
+  if (spec.only_id && spec.id_range) throw std::logic_error("a reader takes one id or a range");
+  if (spec.only_id || spec.id_range) {
+    const std::string base = d.topics.at(spec.topic)->get_name();
+    const std::string name =
+        spec.only_id ? base + "_for_" + std::to_string(*spec.only_id)
+                     : base + "_ids_" + std::to_string(spec.id_range->first) + "_" +
+                           std::to_string(spec.id_range->second);
+    std::vector<std::string> parameters;
+    if (spec.only_id) {
+      parameters = {std::to_string(*spec.only_id)};
+    } else {
+      parameters = {std::to_string(spec.id_range->first), std::to_string(spec.id_range->second)};
+    }
     fdds::ContentFilteredTopic* filtered = d.participant->create_contentfilteredtopic(
-        name, d.topics.at(spec.topic), "agent_id = %0", {std::to_string(*spec.only_id)},
-        kAgentIdFilterClass);
+        name, d.topics.at(spec.topic), spec.only_id ? "agent_id = %0" : "agent_id BETWEEN %0 AND %1",
+        parameters, kAgentIdFilterClass);
     if (filtered == nullptr) throw std::runtime_error("cannot create the content filter " + name);
     d.filtered.push_back(filtered);
     description = filtered;
@@ -730,6 +765,17 @@ protocol::SenderKey Node::WriterKey(Topic topic) const {
 }
 
 int Node::AuthenticationRestarts() const { return impl_->authentication_restarts; }
+
+long Node::DroppedByIdRange() const { return impl_->filter_factory.dropped.load(); }
+
+void Node::StopWriterSideFiltering() {
+  Impl& d = *impl_;
+  if (!d.writers.empty() || !d.filtered.empty()) {
+    throw std::logic_error("StopWriterSideFiltering comes before any writer or filtered reader");
+  }
+  if (d.filters_registered) d.participant->unregister_content_filter_factory(kAgentIdFilterClass);
+  d.filters_registered = false;
+}
 
 int Node::MatchedWriters(Topic topic) const {
   auto it = impl_->readers.find(topic);

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <utility>
 #include <string>
 #include <variant>
 #include <vector>
@@ -39,11 +40,13 @@ using Event = std::variant<Received<protocol::TruthMsg>, Received<protocol::Rang
                            Received<protocol::ContributionMsg>, Received<protocol::StateMsg>,
                            LivelinessChange>;
 
-// What a reader receives. kOwnId: only the samples keyed to one agent id (a content filter,
-// evaluated at the writer where it can be).
+// What a reader receives. only_id: only the samples keyed to one agent id; id_range: only
+// samples keyed to an id in [first, second], the others dropped as they arrive and counted
+// (DroppedByIdRange). Content filters, evaluated at the writer where it can be.
 struct ReaderSpec {
   Topic topic;
   std::optional<AgentId> only_id;
+  std::optional<std::pair<AgentId, AgentId>> id_range = std::nullopt;
 };
 
 class Node {
@@ -93,6 +96,12 @@ class Node {
   int AuthenticationRestarts() const;
   // This node's writer of `topic` as peers see it.
   protocol::SenderKey WriterKey(Topic topic) const;
+  // Samples this node's id_range readers dropped (keyed to an id outside the range).
+  long DroppedByIdRange() const;
+  // Makes this participant's writers send every sample, as another vendor's or a hostile
+  // writer does, instead of evaluating its peers' content filters first (a test tool's
+  // attack must reach its targets). Before any writer or filtered reader.
+  void StopWriterSideFiltering();
   // How many writers currently match this node's reader of `topic` (its own included).
   int MatchedWriters(Topic topic) const;
   // How many readers currently match this node's writer of `topic` (its own included).

@@ -815,6 +815,17 @@ void AgentProtocol::OnUnauthorised(AgentId claimed, const SenderKey& from) {
   Reject("agent " + std::to_string(claimed) + " (writer " + ToString(from) + ")", "not_authorised");
 }
 
+void AgentProtocol::OnUnknownIdsDropped(long total) {
+  if (total <= unknown_ids_dropped_) return;
+  const long fresh = total - unknown_ids_dropped_;
+  unknown_ids_dropped_ = total;
+  counters_.rejected += fresh;
+  counters_.by_reason["rejected: unknown_agent_id"] += fresh;
+  LogOnce(LogLevel::kWarn, "transport|rejected|unknown_agent_id",
+          "rejected contributions under ids outside 1.." + std::to_string(config_.agents.count) +
+              ": unknown_agent_id (logged once)");
+}
+
 void AgentProtocol::Reject(const std::string& who, const std::string& reason) {
   ++counters_.rejected;
   ++counters_.by_reason["rejected: " + reason];

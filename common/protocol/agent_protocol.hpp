@@ -111,6 +111,10 @@ class AgentProtocol {
   // (with DDS Security its permissions name another id: docs/SECURITY.md): the message is
   // counted as rejected, reason not_authorised, and never used.
   void OnUnauthorised(AgentId claimed, const SenderKey& from);
+  // The transport has dropped `total` contributions so far, keyed to ids outside
+  // 1..agents.count, before they reached this protocol (a content filter: garbage costs no
+  // wake-up). Counted as rejected, reason unknown_agent_id, like those this protocol sees.
+  void OnUnknownIdsDropped(long total);
 
   // When OnTimer should next be called (nullopt: only events can move the protocol on).
   std::optional<double> NextDeadline() const;
@@ -234,6 +238,7 @@ class AgentProtocol {
   std::map<AgentId, Peer> peers_;
   std::map<SenderKey, AgentId> writer_ids_;
   LapseFilter lapses_;  // liveliness lapses held for network.liveliness_grace_s
+  long unknown_ids_dropped_ = 0;  // by the transport, as last reported
   std::optional<SenderKey> target_writer_;
   bool target_alive_ = false;  // the bound target writer: alive until seen lost
   int matched_ = -1;

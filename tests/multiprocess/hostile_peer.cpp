@@ -111,6 +111,7 @@ int main(int argc, char** argv) {
   }
   const auto run = deif::protocol::RunTokenOf(run_name);
   deif::dds::Node node(config, name, run_name.empty() ? "no-such-run" : run_name);
+  node.StopWriterSideFiltering();  // an attacker sends everything, whatever its peers filter
   using deif::dds::Topic;
   const auto topic_name = [](Topic t) {
     switch (t) {

@@ -626,3 +626,16 @@ TEST_CASE("A measurement from the target that fails validation is counted, and t
   CHECK(net.now == 0.0);  // nobody waited for a timeout
   CHECK(AllAgreeAt(net, 3));
 }
+
+TEST_CASE("Contributions the transport dropped under unknown ids are counted once each, as "
+          "rejections", "[protocol][validation]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  AgentProtocol& agent = *net.agents.at(1);
+  agent.OnUnknownIdsDropped(5);
+  agent.OnUnknownIdsDropped(5);  // the same total again: nothing new
+  CHECK(agent.counters().rejected == 5);
+  agent.OnUnknownIdsDropped(8);
+  CHECK(agent.counters().rejected == 8);
+  CHECK(agent.counters().by_reason.at("rejected: unknown_agent_id") == 8);
+}
