@@ -631,7 +631,7 @@ TEST_CASE("Contributions the transport dropped under unknown ids are counted onc
           "rejections", "[protocol][validation]") {
   ScriptedNetwork net(kThreeAgents);
   net.Start();
-  AgentProtocol& agent = *net.agents.at(1);
+  protocol::AgentProtocol& agent = *net.agents.at(1);
   agent.OnUnknownIdsDropped(5);
   agent.OnUnknownIdsDropped(5);  // the same total again: nothing new
   CHECK(agent.counters().rejected == 5);
