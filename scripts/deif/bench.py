@@ -1,7 +1,8 @@
 """Benchmarks of the whole system on one host (scripts/deif-bench; docs/BENCHMARKS.md).
 
 Sections (all by default; --only picks some): core, pingpong, lockstep, failure, wire,
-network, realtime (scripts/deif/bench_network.py), security (scripts/deif/bench_security.py).
+network, realtime (scripts/deif/bench_network.py), security (scripts/deif/bench_security.py),
+hostile (scripts/deif/bench_hostile.py; needs deif_hostile, built with the tests).
 Executables come from ${DEIF_BUILD_DIR:-build}/bin: deif_agent, deif_target (through
 deif.launcher), core_bench, dds_pingpong, step_observer. A benchmark program that is missing,
 or older than its bench/<name>.cpp (it did not build from the current source), is skipped
@@ -34,7 +35,8 @@ from . import artefacts, config, launcher, paths
 ROOT = paths.ROOT
 DEFAULT_CONFIG = os.path.join(ROOT, "configs", "default.yaml")
 RESULTS_DIR = os.path.join(ROOT, "bench", "results")
-SECTIONS = ("core", "pingpong", "lockstep", "failure", "wire", "network", "realtime", "security")
+SECTIONS = ("core", "pingpong", "lockstep", "failure", "wire", "network", "realtime", "security",
+            "hostile")
 LOG_TIME = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\]")
 TARGET_DONE = re.compile(r"done at step (\d+) after ([\d.]+) s")
 
@@ -648,6 +650,9 @@ def make_table(res):
     if res.get("security"):
         from .bench_security import make_table as security_table
         lines.append(security_table(res["security"]))
+    if res.get("hostile"):
+        from .bench_hostile import make_table as hostile_table
+        lines.append(hostile_table(res["hostile"]))
     core = (res.get("core") or {}).get("rows")
     if core:
         lines.append("**Core micro-benchmarks** (CPU time per call [us])")
@@ -791,6 +796,9 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
         if "security" in sections:
             from .bench_security import run_security
             res["security"] = run_security(quick, domains, work_dir)
+        if "hostile" in sections:
+            from .bench_hostile import run_hostile
+            res["hostile"] = run_hostile(quick, domains, work_dir)
     finally:
         if not keep_runs:
             shutil.rmtree(work_dir, ignore_errors=True)
