@@ -189,4 +189,14 @@ void AgentNode::Execute(std::vector<protocol::AgentAction> actions) {
   }
 }
 
+bool AgentNode::LeaveQuietly() {
+  // The normal end of a run: every process of the run leaves at about the same time
+  // (dds::Node::Abandon).
+  if (stop_requested_ || !protocol_.finished() || exit_code_.value_or(protocol::kExitOk) != protocol::kExitOk) {
+    return false;
+  }
+  node_.Abandon();
+  return true;
+}
+
 }  // namespace deif::agent

@@ -21,6 +21,7 @@ class AgentNode : public dds::Application {
   AgentNode(dds::ProcessContext& context, AgentId id);
   int Run() override;
   void Stop() override;
+  bool LeaveQuietly() override;
 
  private:
   // Another live process with this id (its state, with another instance token) refuses us.

@@ -232,6 +232,14 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     });
     const int code = app->Run();
     signals.SetHandler(nullptr);
+    if (app->LeaveQuietly()) {
+      app.reset();  // its files are closed; its participant is left to the process's end
+      log->flush();
+      spdlog::shutdown();
+      std::fflush(stdout);  // not fflush(nullptr): it would wait for stdin, read by another thread
+      std::fflush(stderr);
+      std::_Exit(code);
+    }
     return code;
   } catch (const ConfigError& e) {
     return fail(protocol::kExitBadConfig, e.what());

@@ -574,6 +574,7 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
 }
 
 Node::~Node() {
+  if (!impl_) return;  // abandoned
   Impl& d = *impl_;
   {
     std::lock_guard<std::mutex> lock(d.assert_mutex);
@@ -765,6 +766,11 @@ protocol::SenderKey Node::WriterKey(Topic topic) const {
 }
 
 int Node::AuthenticationRestarts() const { return impl_->authentication_restarts; }
+
+void Node::Abandon() {
+  Impl* leaked = impl_.release();  // DDS threads may still use it until the process ends
+  (void)leaked;
+}
 
 long Node::DroppedByIdRange() const { return impl_->filter_factory.dropped.load(); }
 

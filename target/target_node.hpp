@@ -29,6 +29,7 @@ class TargetNode : public dds::Application {
   ~TargetNode() override;
   int Run() override;
   void Stop() override;
+  bool LeaveQuietly() override;
 
  private:
   bool AnotherTargetInThisRun();
