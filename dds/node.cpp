@@ -23,6 +23,7 @@
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <fastdds/dds/domain/DomainParticipantListener.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
+#include <fastdds/dds/publisher/DataWriterListener.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
 #include <fastdds/dds/subscriber/DataReader.hpp>
 #include <fastdds/dds/subscriber/DataReaderListener.hpp>
@@ -432,6 +433,30 @@ class LivelinessListener : public fdds::DataReaderListener {
   std::function<void()> wake_;
 };
 
+// Keeps the set of remote readers a writer currently matches (Fast DDS 2.9 does not
+// implement DataWriter::get_matched_subscriptions), from a DDS thread.
+class MatchListener : public fdds::DataWriterListener {
+ public:
+  explicit MatchListener(std::function<void()> wake) : wake_(std::move(wake)) {}
+  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& status) override {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (status.current_count_change > 0) readers_.insert(ToKey(status.last_subscription_handle));
+      if (status.current_count_change < 0) readers_.erase(ToKey(status.last_subscription_handle));
+    }
+    wake_();  // the application may be waiting for a match
+  }
+  std::set<protocol::SenderKey> Readers() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return readers_;
+  }
+
+ private:
+  std::function<void()> wake_;
+  mutable std::mutex mutex_;
+  std::set<protocol::SenderKey> readers_;
+};
+
 constexpr int kMaxAuthenticationRestarts = 5;
 
 // Waits until every participant discovered so far has an authentication outcome and no new
@@ -472,6 +497,7 @@ struct Node::Impl {
   std::map<Topic, fdds::DataWriter*> writers;
   std::map<Topic, fdds::DataReader*> readers;
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
+  std::map<Topic, std::unique_ptr<MatchListener>> writer_listeners;
   std::set<protocol::SenderKey> own_writers;
   bool passive = false;  // MakePassive(): no writer, ever
   bool secure = false;   // network.security.enabled
@@ -596,11 +622,14 @@ void Node::AddWriter(Topic topic) {
   if (d.passive) {
     throw std::logic_error(std::string("a passive node has no writer (") + NamesOf(topic).name + ")");
   }
-  fdds::DataWriter* writer = d.publisher->create_datawriter(d.topics.at(topic), WriterQos(topic, d.config));
+  auto listener = std::make_unique<MatchListener>([&d] { d.guard.set_trigger_value(true); });
+  fdds::DataWriter* writer = d.publisher->create_datawriter(
+      d.topics.at(topic), WriterQos(topic, d.config), listener.get(), fdds::StatusMask::publication_matched());
   if (writer == nullptr) {
     throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
   }
   d.writers[topic] = writer;
+  d.writer_listeners[topic] = std::move(listener);
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
 }
 
@@ -781,6 +810,12 @@ void Node::StopWriterSideFiltering() {
   }
   if (d.filters_registered) d.participant->unregister_content_filter_factory(kAgentIdFilterClass);
   d.filters_registered = false;
+}
+
+std::set<protocol::SenderKey> Node::MatchedReaderKeys(Topic topic) const {
+  auto it = impl_->writer_listeners.find(topic);
+  if (it == impl_->writer_listeners.end()) return {};
+  return it->second->Readers();
 }
 
 int Node::MatchedWriters(Topic topic) const {

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <set>
 #include <utility>
 #include <string>
 #include <variant>
@@ -108,6 +109,9 @@ class Node {
   // writer does, instead of evaluating its peers' content filters first (a test tool's
   // attack must reach its targets). Before any writer or filtered reader.
   void StopWriterSideFiltering();
+  // The readers this node's writer of `topic` currently matches (its own included), as
+  // keys: the first 12 bytes name the reader's participant.
+  std::set<protocol::SenderKey> MatchedReaderKeys(Topic topic) const;
   // How many writers currently match this node's reader of `topic` (its own included).
   int MatchedWriters(Topic topic) const;
   // How many readers currently match this node's writer of `topic` (its own included).

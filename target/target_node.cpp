@@ -119,6 +119,7 @@ int TargetNode::Run() {
       go.swap(go_steps_);
     }
     for (StepIndex step : go) protocol_.OnGo(step, now_s);
+    if (!protocol_.started()) protocol_.OnRangeReaders(node_.MatchedReaderKeys(dds::Topic::kRange));
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
   }

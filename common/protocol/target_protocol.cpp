@@ -99,6 +99,16 @@ void TargetProtocol::OnGo(StepIndex step, double now_s) {
   Advance(now_s);
 }
 
+void TargetProtocol::OnRangeReaders(std::set<SenderKey> readers) { range_readers_ = std::move(readers); }
+
+bool TargetProtocol::RangesReach(const Agent& agent) const {
+  if (!range_readers_ || !agent.writer) return true;
+  for (const SenderKey& reader : *range_readers_) {
+    if (std::equal(reader.begin(), reader.begin() + 12, agent.writer->begin())) return true;
+  }
+  return false;
+}
+
 void TargetProtocol::OnTimer(double now_s) {
   ConfirmLapses(now_s);
   Advance(now_s);
@@ -171,7 +181,8 @@ void TargetProtocol::Advance(double now_s) {
         bool all_matched = true;
         for (AgentId id : alive) {
           const int matched = agents_.at(id).latest->matched;
-          all_matched = all_matched && (matched < 0 || matched >= config_.agents.count);
+          all_matched = all_matched && (matched < 0 || matched >= config_.agents.count) &&
+                        RangesReach(agents_.at(id));
         }
         const bool everyone =
             alive.size() >= static_cast<std::size_t>(config_.agents.count) && all_matched;

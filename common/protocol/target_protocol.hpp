@@ -70,11 +70,17 @@ class TargetProtocol {
   // The faults of a held step were applied.
   void OnGo(StepIndex step, double now_s);
   void OnTimer(double now_s);
+  // The readers the transport's range writer currently matches. Once reported, the run
+  // starts only when it reaches every agent present (a reader of the agent's participant:
+  // the same first 12 bytes as its state writer), so that no first range waits for a
+  // discovery repair (docs/PROTOCOL.md, "Start"). Never reported: not checked.
+  void OnRangeReaders(std::set<SenderKey> readers);
 
   std::optional<double> NextDeadline() const;
   std::vector<TargetAction> TakeActions();
 
   bool finished() const { return phase_ == Phase::kDone; }
+  bool started() const { return phase_ != Phase::kWaitingForAgents; }
   StepIndex current_step() const { return step_; }
   std::set<AgentId> AliveAgents() const;  // alive with a known state
   const std::map<std::string, std::int64_t>& rejected_by_reason() const { return rejected_; }
@@ -94,6 +100,7 @@ class TargetProtocol {
   };
 
   void Advance(double now_s);
+  bool RangesReach(const Agent& agent) const;
   bool StepDone(double now_s) const;
   double StepWait() const;
   bool FaultsApplied(double now_s) const;
@@ -120,6 +127,7 @@ class TargetProtocol {
   std::map<AgentId, Agent> agents_;
   std::map<SenderKey, AgentId> writer_ids_;
   LapseFilter lapses_;  // liveliness lapses held for network.liveliness_grace_s
+  std::optional<std::set<SenderKey>> range_readers_;  // OnRangeReaders
   std::map<std::string, std::int64_t> rejected_;
   std::set<std::string> logged_once_;
 };

@@ -639,3 +639,29 @@ TEST_CASE("Contributions the transport dropped under unknown ids are counted onc
   CHECK(agent.counters().rejected == 8);
   CHECK(agent.counters().by_reason.at("rejected: unknown_agent_id") == 8);
 }
+
+TEST_CASE("The target starts only when its range writer reaches every agent present, once the "
+          "transport reports its readers", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  // GIVEN a transport whose range writer has matched the readers of agents 1 and 2 only
+  const auto reader_of = [](int node) {
+    protocol::SenderKey key = deif::testing::KeyOf(node);
+    key[15] = 0x07;  // another entity of the same participant
+    return key;
+  };
+  net.target->OnRangeReaders({reader_of(1), reader_of(2)});
+  net.Start();
+  net.Pump();
+  net.AdvanceTime(0.5);
+  net.Pump();
+  // THEN every agent's state is in, but no step is published
+  CHECK_FALSE(net.target->started());
+  // WHEN agent 3's reader matches too
+  net.target->OnRangeReaders({reader_of(1), reader_of(2), reader_of(3)});
+  net.AdvanceTime(0.01);
+  net.Pump();
+  // THEN the run starts
+  CHECK(net.target->started());
+  net.RunUntil(3);
+  CHECK(net.agents.at(3)->last_written_step() >= 3);
+}
