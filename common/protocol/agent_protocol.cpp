@@ -819,16 +819,12 @@ void AgentProtocol::OnUnknownIdsDropped(long total) {
   if (total <= unknown_ids_dropped_) return;
   const long fresh = total - unknown_ids_dropped_;
   unknown_ids_dropped_ = total;
-  counters_.rejected += fresh;
-  counters_.by_reason["rejected: unknown_agent_id"] += fresh;
-  LogOnce(LogLevel::kWarn, "transport|rejected|unknown_agent_id",
-          "rejected contributions under ids outside 1.." + std::to_string(config_.agents.count) +
-              ": unknown_agent_id (logged once)");
+  Reject("writers of ids outside 1.." + std::to_string(config_.agents.count), "unknown_agent_id", fresh);
 }
 
-void AgentProtocol::Reject(const std::string& who, const std::string& reason) {
-  ++counters_.rejected;
-  ++counters_.by_reason["rejected: " + reason];
+void AgentProtocol::Reject(const std::string& who, const std::string& reason, std::int64_t count) {
+  counters_.rejected += count;
+  counters_.by_reason["rejected: " + reason] += count;
   LogOnce(LogLevel::kWarn, who + "|rejected|" + reason,
           "rejected a message from " + who + ": " + reason + " (logged once)");
 }

@@ -191,7 +191,7 @@ class AgentProtocol {
   void SetRollCall(Record& r, std::vector<AgentId> roll_call);
 
   bool AcceptIdentity(const ContributionMsg& msg, const SenderKey& from, double now_s);
-  void Reject(const std::string& who, const std::string& reason);
+  void Reject(const std::string& who, const std::string& reason, std::int64_t count = 1);
   void Drop(const std::string& who, const std::string& reason);
   void Log(LogLevel level, std::string text);
   void LogOnce(LogLevel level, const std::string& key, std::string text);

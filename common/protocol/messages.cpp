@@ -1,5 +1,6 @@
 #include "common/protocol/messages.hpp"
 
+#include <algorithm>
 #include <cstdio>
 
 namespace deif::protocol {
@@ -11,6 +12,10 @@ RunToken RunTokenOf(const std::string& run_name) {
     hash *= 1099511628211ull;  // FNV prime
   }
   return hash == 0 ? 1 : hash;
+}
+
+bool SameProcess(const SenderKey& a, const SenderKey& b) {
+  return std::equal(a.begin(), a.begin() + 12, b.begin());
 }
 
 std::string ToString(const SenderKey& key) {

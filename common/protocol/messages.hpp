@@ -21,9 +21,12 @@ using RunToken = std::uint64_t;
 RunToken RunTokenOf(const std::string& run_name);
 
 // The identity of one sender of messages: a DDS writer's GUID (16 bytes), or a node of the
-// simulated network. Opaque to the protocol: it only compares them.
+// simulated network. Opaque to the protocol: it only compares them, whole or by process.
 using SenderKey = std::array<std::uint8_t, 16>;
 std::string ToString(const SenderKey& key);
+// Whether two keys belong to one process: their first 12 bytes, a DDS GUID prefix (one
+// participant), are equal. The scripted and simulated networks key their nodes the same way.
+bool SameProcess(const SenderKey& a, const SenderKey& b);
 
 // deif/range: target -> agent `agent_id`, one per agent id and step. `measured` says whether
 // the target measured this agent at this step; the roll call lists every id it measured

@@ -104,7 +104,7 @@ void TargetProtocol::OnRangeReaders(std::set<SenderKey> readers) { range_readers
 bool TargetProtocol::RangesReach(const Agent& agent) const {
   if (!range_readers_ || !agent.writer) return true;
   for (const SenderKey& reader : *range_readers_) {
-    if (std::equal(reader.begin(), reader.begin() + 12, agent.writer->begin())) return true;
+    if (SameProcess(reader, *agent.writer)) return true;
   }
   return false;
 }

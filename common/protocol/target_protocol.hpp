@@ -71,8 +71,8 @@ class TargetProtocol {
   void OnGo(StepIndex step, double now_s);
   void OnTimer(double now_s);
   // The readers the transport's range writer currently matches. Once reported, the run
-  // starts only when it reaches every agent present (a reader of the agent's participant:
-  // the same first 12 bytes as its state writer), so that no first range waits for a
+  // starts only when it reaches every agent present (a reader in the process of the agent's
+  // state writer, SameProcess), so that no first range waits for a
   // discovery repair (docs/PROTOCOL.md, "Start"). Never reported: not checked.
   void OnRangeReaders(std::set<SenderKey> readers);
 
