@@ -5,18 +5,18 @@ in one invocation so that both see the same machine load. Each figure is the med
 repetitions; the ratio is undisturbed / attacked (goal: the attacked run within 2x).
 
 The rate is measured from step 30, when the attack starts, to the end of the run. The
-estimate's quality is the fraction of agent-steps whose error is within 3 standard deviations
-of the agent's own covariance on both axes, and the RMSE. Reports figures; asserts nothing.
+estimate's quality is the run's own metrics (summary.json, computed by the C++ core): the
+ANEES (about 2 for an estimate consistent with its own covariance in 2-D) and the RMSE.
+Reports figures; asserts nothing.
 Every run is over UDPv4, and the flood runs at a lower CPU priority (nice 10), as in
 mp_hostile_flood: a flooder on another host spends its own CPU, and over shared memory a
 flooder on the same host delivers every sample (docs/FASTDDS_NOTES.md).
 """
-import math
 import os
 import subprocess
 import time
 
-from . import artefacts, launcher, paths
+from . import launcher, paths
 
 ATTACKS = ("none", "contributions", "truth", "ranges", "states", "impersonate", "flood")
 GOAL_RATIO = 2.0  # every attacked run within 2x of the undisturbed rate
@@ -28,30 +28,6 @@ def _median(values):
     from .bench import median
     values = [v for v in values if v is not None]
     return median(values) if values else None
-
-
-def _within_3_sigma(out_dir):
-    """(fraction of agent-steps within 3 sigma on both axes, RMSE over them)."""
-    truth = {int(r["step"]): (float(r["x_true"]), float(r["y_true"]))
-             for r in artefacts.read_csv(os.path.join(out_dir, "target.csv"))}
-    inside = total = 0
-    sq = 0.0
-    for j in range(1, AGENTS + 1):
-        path = os.path.join(out_dir, f"agent_{j}.csv")
-        if not os.path.exists(path):
-            continue
-        for r in artefacts.read_csv(path):
-            t = truth.get(int(r["step"]))
-            if t is None:
-                continue
-            ex, ey = float(r["x_est"]) - t[0], float(r["y_est"]) - t[1]
-            sx, sy = math.sqrt(max(float(r["p_xx"]), 0.0)), math.sqrt(max(float(r["p_yy"]), 0.0))
-            total += 1
-            inside += abs(ex) <= 3 * sx and abs(ey) <= 3 * sy
-            sq += ex * ex + ey * ey
-    if total == 0:
-        return None, None
-    return inside / total, math.sqrt(sq / total)
 
 
 def _one(attack, steps, seconds, domain, work_dir, rep):
@@ -82,7 +58,8 @@ def _one(attack, steps, seconds, domain, work_dir, rep):
         res = lau.finish()
     fig["ok"] = bool(res.ok)
     fig["steps_per_s"] = (s1 - s0) / (t1 - t0) if t1 > t0 and s1 > s0 else None
-    fig["within_3_sigma"], fig["rmse_m"] = _within_3_sigma(res.out_dir)
+    metrics = res.summary.get("metrics", {})
+    fig["anees"], fig["rmse_m"] = metrics.get("anees"), metrics.get("rmse_m")
     counters = res.summary.get("counters", {})
     fig["rejected"] = {k: v.get("rejected", 0) + v.get("dropped", 0) for k, v in counters.items()}
     return fig
@@ -112,7 +89,7 @@ def summarize(out):
         out["medians"][attack] = {
             "steps_per_s": rate,
             "slowdown": (base / rate) if base and rate else None,
-            "within_3_sigma": _median([f["within_3_sigma"] for f in runs]),
+            "anees": _median([f["anees"] for f in runs]),
             "rmse_m": _median([f["rmse_m"] for f in runs]),
             "sent": _median([f.get("sent") for f in runs]),
             "runs_ok": sum(1 for f in runs if f["ok"]),
@@ -128,7 +105,7 @@ def make_table(h):
     lines = [f"**Hostile peers** (N = {AGENTS}, lock-step, default config over UDPv4, {h['steps']} steps, "
              f"attack from step {START_STEP}; medians of {h['reps']} run(s); "
              "slowdown = undisturbed rate / attacked rate)", "",
-             "| attack | sent | rate [steps/s] | slowdown | agent-steps within 3 sigma | RMSE [m] | runs ok |",
+             "| attack | sent | rate [steps/s] | slowdown | ANEES | RMSE [m] | runs ok |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for attack in ATTACKS:
         m = h.get("medians", {}).get(attack)
@@ -136,7 +113,7 @@ def make_table(h):
             continue
         fmt = (lambda v, spec: "-" if v is None else format(v, spec))
         lines.append(f"| {attack} | {fmt(m['sent'], '.0f')} | {fmt(m['steps_per_s'], '.0f')} | "
-                     f"{fmt(m['slowdown'], '.2f')} | {fmt(m['within_3_sigma'] and 100 * m['within_3_sigma'], '.1f')} % | "
+                     f"{fmt(m['slowdown'], '.2f')} | {fmt(m['anees'], '.2f')} | "
                      f"{fmt(m['rmse_m'], '.4f')} | {m['runs_ok']}/{h['reps']} |")
     lines.append("")
     goal = h.get("goal")
