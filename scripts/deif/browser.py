@@ -40,13 +40,14 @@ class Browser:
             "binary": CHROMIUM,
             "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
                      f"--window-size={width},{height}", f"--user-data-dir={os.path.join(work, 'chromium')}"]}}}}
-        self.session = self._call("POST", "/session", caps)["sessionId"]
+        # The first start of Chromium on a fresh machine can take a minute or more.
+        self.session = self._call("POST", "/session", caps, timeout_s=240)["sessionId"]
 
-    def _call(self, method, path, body=None):
+    def _call(self, method, path, body=None, timeout_s=60):
         data = json.dumps(body).encode() if body is not None else None
         req = urllib.request.Request(f"http://127.0.0.1:{self.port}{path}", data=data, method=method,
                                      headers={"Content-Type": "application/json"})
-        with urllib.request.urlopen(req, timeout=60) as r:
+        with urllib.request.urlopen(req, timeout=timeout_s) as r:
             return json.loads(r.read())["value"]
 
     def _session(self, method, path, body=None):

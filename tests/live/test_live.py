@@ -51,17 +51,22 @@ def test_page_shows_a_kill(work, domain):
     agent 3 in the fault list; the observer ends with status 0 and its marks file holds the
     same loss."""
     faults = [launcher.Fault.parse("20:3", "kill")]  # what deif-run --kill 20:3 passes
+    # Real time does not wait for the test: the run is long (5 min at 10 Hz) and the browser
+    # is up before it starts (Chromium's first start on a fresh machine builds its font cache
+    # and took over a minute once, longer than a 400-step run); the test ends the run as soon
+    # as the page has shown the kill.
+    steps = 3000
     run = launcher.Launcher(
-        SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=400, domain=domain, faults=faults,
+        SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=steps, domain=domain, faults=faults,
         overrides=["scenario.mode=realtime", "scenario.period_s=0.1"], progress=False)
     run.live_port = 0
-    browser = None
+    browser = Browser(work)
+    browser.open("about:blank")
     seen = []
     try:
         run.start()
         assert run.live_url and run.live_url.startswith("http://"), "the observer printed no URL"
         url = run.live_url.replace(run.live_url.split("/")[2].split(":")[0], "127.0.0.1", 1)
-        browser = Browser(work)
         browser.open(url)
         # In real time the launcher applies a fault when it serves the target's hold, so the
         # kill waits here until the page has shown all four agents alive.
@@ -78,7 +83,7 @@ def test_page_shows_a_kill(work, domain):
             time.sleep(0.02)
         after = poll(browser, lambda p: p["alive"] == 3 and p["rows"].get("agent-3") == "lost"
                      and any(m["kind"] == "lost" and m["agent"] == 3 for m in p["marks"]), 30, seen)
-        assert run.current_step() < 400, "the run ended before the page showed the kill"
+        assert run.current_step() < steps, "the run ended before the page showed the kill"
         assert [after["rows"][f"agent-{j}"] for j in (1, 2, 4)] == ["alive"] * 3
         assert after["gap_opt"] == "2 pi/3"
         assert after["step"] >= killed_at
@@ -88,8 +93,7 @@ def test_page_shows_a_kill(work, domain):
         first3 = counts.index(3)
         assert 4 in counts[:first3] and all(c == 3 for c in counts[first3:]), counts
     finally:
-        if browser is not None:
-            browser.close()
+        browser.close()
         run.terminate_all()
         res = run.finish()
     observer = next(p for p in res.summary["processes"] if p["name"] == "observer")
