@@ -87,6 +87,9 @@ int AgentNode::Run() {
   } else {
     context_.log->warn("no --out folder: {} is not written", AgentCsvName(id_));
   }
+  // The initial state carries what the transport has matched so far (never "not reported"):
+  // the target must not take it for an agent that does not report (docs/PROTOCOL.md, "Start").
+  ReportMatches(dds::ToSeconds(dds::Clock::now()));
   protocol_.Start(dds::ToSeconds(dds::Clock::now()));
   for (const dds::Event& event : early_events_) Dispatch(event, dds::ToSeconds(dds::Clock::now()));
   early_events_.clear();
@@ -97,10 +100,7 @@ int AgentNode::Run() {
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
     for (const dds::Event& event : events) Dispatch(event, now_s);
-    // Both ways: this agent hears every peer, and every peer hears this agent.
-    protocol_.OnPeersMatched(std::min(node_.MatchedWriters(dds::Topic::kContribution),
-                                      node_.MatchedReaders(dds::Topic::kContribution)),
-                             now_s);
+    ReportMatches(now_s);
     protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
@@ -122,6 +122,14 @@ int AgentNode::Run() {
   for (const auto& [reason, count] : c.by_reason) context_.log->info("  {}: {}", reason, count);
   WriteCounters();
   return exit_code_.value_or(protocol::kExitOk);
+}
+
+void AgentNode::ReportMatches(double now_s) {
+  // Both ways: this agent hears every peer, and every peer hears this agent; and it hears
+  // the target.
+  protocol_.OnPeersMatched(std::min(node_.MatchedWriters(dds::Topic::kContribution),
+                                    node_.MatchedReaders(dds::Topic::kContribution)),
+                           node_.MatchedWriters(dds::Topic::kRange), now_s);
 }
 
 void AgentNode::WriteCounters() const {

@@ -32,6 +32,7 @@ class AgentNode : public dds::Application {
   bool Authorised(AgentId claimed, const protocol::SenderKey& writer) const;
   void Execute(std::vector<protocol::AgentAction> actions);
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
+  void ReportMatches(double now_s);
   void WriteCounters() const;
 
   dds::ProcessContext& context_;

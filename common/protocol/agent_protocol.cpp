@@ -229,8 +229,12 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
   Advance(now_s);
 }
 
-void AgentProtocol::OnPeersMatched(int matched, double now_s) {
+void AgentProtocol::OnPeersMatched(int matched, int range_writers, double now_s) {
   (void)now_s;
+  // A match is known to each side only from the other side's announcement: the target's
+  // writer may have matched our range reader while our reader has not yet matched the
+  // writer, and a range sent then is dropped here until a discovery repair (1 s and more).
+  if (range_writers < 1) matched = 0;
   if (matched == matched_) return;
   matched_ = matched;
   if (started_ && !ever_opened_ && !finished_) {

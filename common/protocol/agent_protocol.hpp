@@ -103,10 +103,12 @@ class AgentProtocol {
   // range writer.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
   void OnTimer(double now_s);
-  // How many peers' contribution writers this agent's transport has matched. Before the
-  // first step it is republished in the initial state, so the target can start only when
-  // every agent can hear every other (docs/PROTOCOL.md, "Start").
-  void OnPeersMatched(int matched, double now_s);
+  // How many peers' contribution writers this agent's transport has matched, and how many
+  // range writers its range reader has matched. Before the first step the first is
+  // republished in the initial state, as 0 while no range writer is matched, so the target
+  // can start only when every agent can hear every other and hears the target
+  // (docs/PROTOCOL.md, "Start").
+  void OnPeersMatched(int matched, int range_writers, double now_s);
   // The transport knows that the writer `from` may not speak for the agent id `claimed`
   // (with DDS Security its permissions name another id: docs/SECURITY.md): the message is
   // counted as rejected, reason not_authorised, and never used.

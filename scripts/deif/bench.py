@@ -36,7 +36,7 @@ ROOT = paths.ROOT
 DEFAULT_CONFIG = os.path.join(ROOT, "configs", "default.yaml")
 RESULTS_DIR = os.path.join(ROOT, "bench", "results")
 SECTIONS = ("core", "pingpong", "lockstep", "failure", "wire", "network", "realtime", "security",
-            "hostile")
+            "hostile", "discovery")
 LOG_TIME = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\]")
 TARGET_DONE = re.compile(r"done at step (\d+) after ([\d.]+) s")
 
@@ -321,10 +321,11 @@ def _stop_observer(observer, timed_out):
 
 
 def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFAULT_CONFIG,
-                 timeout_s=None, overrides=()):
+                 timeout_s=None, overrides=(), discovery_server=False):
     """Launch a target and n agents (deif.launcher), with the step observer when given, and
     reduce the measurements. `overrides` (KEY=VALUE) go to every process, the observer's
-    included. Returns a dict of figures."""
+    included; discovery_server: the launcher starts the run's Discovery Server. Returns a
+    dict of figures."""
     run_name = f"bench-n{n}-d{domain}-{random.randrange(16 ** 6):06x}"
     out_dir = os.path.join(work_dir, run_name)
     observer = None
@@ -342,7 +343,7 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
         with open(os.devnull, "w") as quiet:
             result = launcher.run(config_path, out_dir, agents=n, steps=steps, domain=domain,
                                   run_name=run_name, progress=False, log=quiet, timeout_s=timeout_s,
-                                  overrides=list(overrides))
+                                  overrides=list(overrides), discovery_server=discovery_server)
     except launcher.LaunchError as e:
         return {"n": n, "steps": steps, "domain": domain, "ok": False, "error": str(e)}
     finally:
@@ -653,6 +654,9 @@ def make_table(res):
     if res.get("hostile"):
         from .bench_hostile import make_table as hostile_table
         lines.append(hostile_table(res["hostile"]))
+    if res.get("discovery"):
+        from .bench_discovery import make_table as discovery_table
+        lines.append(discovery_table(res["discovery"]))
     core = (res.get("core") or {}).get("rows")
     if core:
         lines.append("**Core micro-benchmarks** (CPU time per call [us])")
@@ -748,11 +752,11 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
             if why:
                 log(f"pingpong: skipped: {why}")
                 res["skipped"]["pingpong"] = why
-        if "lockstep" in sections:
+        if "lockstep" in sections or "discovery" in sections:
             observer_exe, why = bench_program("step_observer")
             if why:
                 log(f"lockstep: no step latency or discovery figures: {why}")
-                res["skipped"]["lockstep step_observer"] = why + "; no latency or discovery figures"
+                res["skipped"]["step_observer"] = why + "; no latency or discovery figures"
         pp = {"shm": [], "udp": []}
         lock = {}
         if pingpong_exe or "lockstep" in sections:
@@ -799,6 +803,10 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
         if "hostile" in sections:
             from .bench_hostile import run_hostile
             res["hostile"] = run_hostile(quick, domains, work_dir)
+        if "discovery" in sections and observer_exe:
+            from .bench_discovery import run_discovery
+            res["discovery"] = run_discovery([16, 64] if agents is None else ns, reps, domains,
+                                             work_dir, observer_exe)
     finally:
         if not keep_runs:
             shutil.rmtree(work_dir, ignore_errors=True)

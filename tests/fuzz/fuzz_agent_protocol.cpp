@@ -147,9 +147,9 @@ class Network {
       Collect(reader);
     }
   }
-  void PeersMatched(AgentId id, int matched) {
+  void PeersMatched(AgentId id, int matched, int range_writers) {
     if (dead_.count(id) > 0) return;
-    agents_.at(id)->OnPeersMatched(matched, now_);
+    agents_.at(id)->OnPeersMatched(matched, range_writers, now_);
     Collect(id);
   }
 
@@ -491,7 +491,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       }
       case 13: net.Kill(in.Byte() % nodes); break;
       case 14: net.Restart(in.Byte() % nodes, net.newest_step() + in.Byte() % 3); break;
-      case 15: net.PeersMatched(1 + in.Byte() % config.agents.count, in.SmallInt()); break;
+      case 15: net.PeersMatched(1 + in.Byte() % config.agents.count, in.SmallInt(), in.SmallInt()); break;
     }
   }
   // Let the run finish: deliver everything, and move time on when nothing is in flight.

@@ -665,3 +665,36 @@ TEST_CASE("The target starts only when its range writer reaches every agent pres
   net.RunUntil(3);
   CHECK(net.agents.at(3)->last_written_step() >= 3);
 }
+
+TEST_CASE("An agent reports its peers matched only once its range reader has matched the "
+          "target, and the target waits for it", "[protocol]") {
+  ScriptedNetwork net(kThreeAgents);
+  // GIVEN agents that match all three contribution writers both ways, agent 3's range reader
+  // not yet matched to the target's writer (its announcement was lost), as their transports
+  // report before they start (agent/agent_node.cpp)
+  net.PeersMatched(1, 3, 1);
+  net.PeersMatched(2, 3, 1);
+  net.PeersMatched(3, 3, 0);
+  net.Start();
+  net.Pump();
+  net.AdvanceTime(0.5);
+  net.Pump();
+  // THEN no step is published
+  CHECK_FALSE(net.target->started());
+  // WHEN agent 3's range reader matches the target's writer
+  net.PeersMatched(3, 3, 1);
+  net.Pump();
+  net.AdvanceTime(0.01);
+  net.Pump();
+  // THEN the run starts, and every agent fuses all three at step 1
+  CHECK(net.target->started());
+  net.RunUntil(2);
+  for (AgentId id = 1; id <= 3; ++id) {
+    REQUIRE_FALSE(net.rows[id].empty());
+    const deif::AgentRow& first = net.rows[id].front();
+    CHECK(first.step == 1);
+    CHECK(first.fused == 3);
+    CHECK(first.complete);
+    CHECK(first.estimate_m == net.rows[1].front().estimate_m);
+  }
+}

@@ -73,6 +73,12 @@ class ScriptedNetwork {
     CollectTarget();
   }
 
+  // What agent id's transport reports it has matched (AgentProtocol::OnPeersMatched).
+  void PeersMatched(AgentId id, int matched, int range_writers) {
+    agents.at(id)->OnPeersMatched(matched, range_writers, now);
+    Collect(id);
+  }
+
   // Delivers queued messages in order until none is left; a message for which `hold`
   // returns true is set aside in `held` instead.
   void Pump(const std::function<bool(const Envelope&)>& hold = nullptr) {
