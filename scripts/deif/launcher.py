@@ -364,7 +364,10 @@ class Launcher:
                 self.hosts.set_loss(h, self.loss)
         if self.discovery_server:
             ip, port = self.discovery_server
-            p = Proc("discovery_server", ["fastdds", "discovery", "-i", "0", "-l", ip, "-p", str(port)],
+            # The server itself, not the `fastdds discovery` wrapper: the wrapper starts it as
+            # a child that outlived the wrapper's SIGTERM (and then held the port, so the next
+            # run's server could not start).
+            p = Proc("discovery_server", ["/usr/bin/fast-discovery-server", "-i", "0", "-l", ip, "-p", str(port)],
                      host=1, log_path=os.path.join(self.out_dir, "logs", "discovery-server.log"))
             self._spawn(p)
             p.expected_death = True  # stopped by the launcher at the end

@@ -397,3 +397,38 @@ def test_shm_restarts(work, domain):
         xs = {(by_step[j][k]["x_est"], by_step[j][k]["y_est"]) for j in range(1, 5)}
         assert len(xs) == 1, f"agents disagree at step {k}: {xs}"
     assert shm_snapshot() - before == set(), "shared-memory files left behind"
+
+
+def server_processes(port):
+    """Pids of live Discovery Server processes listening on `port` (from /proc)."""
+    pids = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                argv = f.read().split(b"\0")
+        except OSError:
+            continue
+        if any(a.endswith(b"fast-discovery-server") for a in argv) and str(port).encode() in argv:
+            pids.append(int(pid))
+    return pids
+
+
+def test_discovery_server(work, domain):
+    """N=4, lock-step with the run's own Fast DDS Discovery Server (deif-run
+    --discovery-server): every agent equals the in-process simulation at every step, and no
+    server outlives its run: a second run on the same domain (the same server port) starts
+    its server and completes too."""
+    port = 11811 + domain
+    try:
+        for name in ("first", "second"):
+            res = launch(work, domain, name=name, agents=4, steps=60, discovery_server=True)
+            assert res.ok, res.summary["processes"]
+            assert [p["name"] for p in res.summary["processes"]].count("discovery_server") == 1
+            cfg = open(os.path.join(res.out_dir, "config.yaml")).read()
+            assert "discovery: server" in cfg and f"127.0.0.1:{port}" in cfg
+            worst, n = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+            assert n == 240 and worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+            assert server_processes(port) == [], "the run's Discovery Server outlived the run"
+    finally:
+        for pid in server_processes(port):  # a failed run's leftover must not hold the port
+            os.kill(pid, 9)
