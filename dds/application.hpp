@@ -27,9 +27,9 @@ class Application {
   virtual int Run() = 0;
   // Thread-safe: makes Run() return soon.
   virtual void Stop() = 0;
-  // After Run(): true when the run is over (not stopped, not failed) and the node has been
-  // abandoned (Node::Abandon): the process then ends at once, without deleting its
-  // participant (docs/FASTDDS_NOTES.md, "Leaving at the end of a run").
+  // After Run(): true when the run is over or failed (not stopped) and the node has been
+  // abandoned (Node::Abandon): the process then ends at once with Run()'s code, without
+  // deleting its participant (docs/FASTDDS_NOTES.md, "Leaving at the end of a run").
   virtual bool LeaveQuietly() { return false; }
 };
 

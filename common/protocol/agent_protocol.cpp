@@ -165,22 +165,32 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
     Drop(who, "too_old");
     return;
   }
-  // Ahead of this agent: held while within the history plus the fusion window of the last
-  // step written or announced (after a freeze the peers' backlog can arrive before the
-  // target's).
+  // Ahead of this agent: held. After a freeze longer than the history, the peers' backlog
+  // (their last history_steps contributions) can arrive before the target's roll calls of
+  // the same steps, i.e. far beyond the last step written or announced; those are the
+  // steps this agent resumes at, so they are kept too, but only the newest
+  // history_steps + fusion_window_steps + 1 steps beyond that reach (memory stays bounded
+  // whatever steps a peer announces); an evicted one is dropped as too_far_ahead.
   StepIndex known = written_;
   if (!pending_ranges_.empty()) known = std::max(known, pending_ranges_.rbegin()->first);
-  if (ever_opened_ && msg.step > known + config_.network.history_steps +
-                                     config_.network.fusion_window_steps) {
-    Drop(who, "too_far_ahead");
-    return;
-  }
+  const StepIndex span = config_.network.history_steps + config_.network.fusion_window_steps;
+  const StepIndex reach = known + span;
   auto& slot = early_[msg.step];
   if (slot.count(msg.agent_id) > 0) {
     Drop(who, "duplicate");
     return;
   }
   slot.emplace(msg.agent_id, std::move(held));
+  if (ever_opened_) {
+    auto first_far = early_.upper_bound(reach);
+    while (static_cast<StepIndex>(std::distance(first_far, early_.end())) > span + 1) {
+      for (const auto& [id, evicted] : first_far->second) {
+        (void)evicted;
+        Drop("agent " + std::to_string(id), "too_far_ahead");
+      }
+      first_far = early_.erase(first_far);
+    }
+  }
   // Before the first step only the newest few steps are kept (a joining agent starts at the
   // newest step the target announces).
   const std::size_t keep = static_cast<std::size_t>(config_.network.fusion_window_steps) + 2;

@@ -5,8 +5,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <string>
+#include <variant>
+#include <vector>
 
 #include "common/protocol/validation.hpp"
 #include "tests/protocol/scripted_network.hpp"
@@ -696,5 +699,71 @@ TEST_CASE("An agent reports its peers matched only once its range reader has mat
     CHECK(first.fused == 3);
     CHECK(first.complete);
     CHECK(first.estimate_m == net.rows[1].front().estimate_m);
+  }
+}
+
+namespace {
+
+// Agent 3 frozen from step 3 to step 20 (longer than the history of 8); on resume only
+// the newest history_steps samples of each writer are left for it (keep-last histories),
+// delivered with the peers' contributions before the target's ranges when
+// `contributions_first`, else the other way round. Returns agent 3's rows from the resume.
+std::vector<deif::AgentRow> ResumeAfterLongFreeze(bool contributions_first, long* too_far_ahead) {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  const auto frozen = [](const Envelope& e) { return e.to == 3 || e.from == 3; };
+  net.frozen.insert(3);
+  net.Pump(frozen);
+  net.Liveliness(1, 3, false);
+  net.Liveliness(2, 3, false);
+  net.Liveliness(deif::testing::kTarget, 3, false);
+  net.RunUntil(20, frozen);
+  const auto step_of = [](const Envelope& e) {
+    return std::visit([](const auto& m) -> StepIndex { return m.step; }, e.message);
+  };
+  std::deque<Envelope> kept;
+  for (Envelope& e : net.held) {
+    if (e.to == 3 && step_of(e) > 20 - 8) kept.push_back(std::move(e));
+  }
+  std::stable_partition(kept.begin(), kept.end(), [&](const Envelope& e) {
+    return std::holds_alternative<protocol::ContributionMsg>(e.message) == contributions_first;
+  });
+  net.held = std::move(kept);
+  net.frozen.erase(3);
+  net.Liveliness(1, 3, true);
+  net.Liveliness(2, 3, true);
+  net.Liveliness(deif::testing::kTarget, 3, true);
+  net.ReleaseHeld();
+  net.RunUntil(30);  // the end of the run
+  const auto& c = net.agents.at(3)->counters().by_reason;
+  *too_far_ahead = c.count("dropped: too_far_ahead") > 0 ? c.at("dropped: too_far_ahead") : 0;
+  std::vector<deif::AgentRow> rows;
+  for (const auto& r : net.rows[3]) {
+    if (r.step > 3) rows.push_back(r);
+  }
+  return rows;
+}
+
+}  // namespace
+
+TEST_CASE("After a freeze longer than the history, a backlog of contributions that arrives "
+          "before the roll calls is kept: the agent resumes as when the roll calls come first",
+          "[protocol]") {
+  long dropped_ranges_first = 0;
+  long dropped_contributions_first = 0;
+  const auto ranges_first = ResumeAfterLongFreeze(false, &dropped_ranges_first);
+  const auto contributions_first = ResumeAfterLongFreeze(true, &dropped_contributions_first);
+  CHECK(dropped_ranges_first == 0);
+  CHECK(dropped_contributions_first == 0);
+  REQUIRE(ranges_first.size() == contributions_first.size());
+  REQUIRE(ranges_first.size() >= 8);  // it wrote rows after the resume, to the end
+  CHECK(ranges_first.back().step == 30);
+  for (std::size_t i = 0; i < ranges_first.size(); ++i) {
+    INFO("step " << ranges_first[i].step);
+    CHECK(contributions_first[i].step == ranges_first[i].step);
+    CHECK(contributions_first[i].estimate_m == ranges_first[i].estimate_m);
+    CHECK(contributions_first[i].covariance == ranges_first[i].covariance);
+    CHECK(contributions_first[i].fused == ranges_first[i].fused);
   }
 }
