@@ -321,11 +321,11 @@ def _stop_observer(observer, timed_out):
 
 
 def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFAULT_CONFIG,
-                 timeout_s=None, overrides=(), discovery_server=False):
+                 timeout_s=None, overrides=(), discovery_server=False, secure=False):
     """Launch a target and n agents (deif.launcher), with the step observer when given, and
     reduce the measurements. `overrides` (KEY=VALUE) go to every process, the observer's
-    included; discovery_server: the launcher starts the run's Discovery Server. Returns a
-    dict of figures."""
+    included; discovery_server: the launcher starts the run's Discovery Server; secure: DDS
+    Security with the run's own certificates. Returns a dict of figures."""
     run_name = f"bench-n{n}-d{domain}-{random.randrange(16 ** 6):06x}"
     out_dir = os.path.join(work_dir, run_name)
     observer = None
@@ -343,7 +343,8 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
         with open(os.devnull, "w") as quiet:
             result = launcher.run(config_path, out_dir, agents=n, steps=steps, domain=domain,
                                   run_name=run_name, progress=False, log=quiet, timeout_s=timeout_s,
-                                  overrides=list(overrides), discovery_server=discovery_server)
+                                  overrides=list(overrides), discovery_server=discovery_server,
+                                  secure=secure)
     except launcher.LaunchError as e:
         return {"n": n, "steps": steps, "domain": domain, "ok": False, "error": str(e)}
     finally:
@@ -532,15 +533,17 @@ def run_wire_inner(ns, steps, work_dir):
     subprocess.run(["mount", "--make-rprivate", "/"], check=True)
     subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", "/dev/shm"], check=True)
     out = []
-    for n in ns:
-        fig = lockstep_run(n, steps, 210 + len(out), work_dir, timeout_s=40.0)
+    # Plain at every N; DDS Security (docs/SECURITY.md) too at N <= 8, next to it.
+    for n, secure in [(n, False) for n in ns] + [(n, True) for n in ns if n <= 8]:
+        fig = lockstep_run(n, steps, 210 + len(out), work_dir, timeout_s=90.0 if secure else 40.0,
+                           secure=secure)
         st = fig.get("steady") or {}
-        out.append({"n": n, "ok": fig["ok"], "last_step": fig["last_step"],
+        out.append({"n": n, "secure": secure, "ok": fig["ok"], "last_step": fig["last_step"],
                     "steps_per_s_udp": st.get("steps_per_s"), "wall_time_s": fig["wall_time_s"],
                     "bytes_per_step": st.get("lo_bytes_per_step"),
                     "packets_per_step": st.get("lo_packets_per_step"),
                     "bytes_per_agent_per_step": (st["lo_bytes_per_step"] / n) if st else None})
-        log(f"  wire n={n}: {out[-1]['bytes_per_agent_per_step']} B/agent/step")
+        log(f"  wire n={n}{' secure' if secure else ''}: {out[-1]['bytes_per_agent_per_step']} B/agent/step")
     return out
 
 
@@ -553,12 +556,22 @@ def run_wire(entry_point, ns, steps, work_dir):
     sys.stderr.write(res.stderr)
     if res.returncode != 0:
         return {"error": res.stderr.strip()[-500:]}
-    rows = json.loads(res.stdout)
+    every = json.loads(res.stdout)
+    rows = [r for r in every if not r.get("secure")]
     # Growth: bytes per step against N, N^2 (all-to-all).
     for r in rows:
         if r["bytes_per_step"]:
             r["bytes_per_step_over_n2"] = r["bytes_per_step"] / (r["n"] ** 2)
-    return {"method": "lo tx bytes in a private network namespace, UDPv4 only", "rows": rows}
+    secure = []
+    for r in (r for r in every if r.get("secure")):
+        plain = next((p for p in rows if p["n"] == r["n"]), {})
+        ratio = (r["bytes_per_step"] / plain["bytes_per_step"]
+                 if r["bytes_per_step"] and plain.get("bytes_per_step") else None)
+        secure.append(dict(r, plain_bytes_per_step=plain.get("bytes_per_step"),
+                           plain_steps_per_s_udp=plain.get("steps_per_s_udp"),
+                           bytes_ratio_secure_over_plain=ratio))
+    return {"method": "lo tx bytes in a private network namespace, UDPv4 only", "rows": rows,
+            "secure_rows": secure}
 
 
 # ---------------------------------------------------------------------------------------
@@ -639,6 +652,16 @@ def make_table(res):
                          f"{fmt(r['packets_per_step'], '.1f')} | {fmt(r.get('bytes_per_step_over_n2'), '.0f')} | "
                          f"{fmt(r['steps_per_s_udp'], '.0f')} |")
         lines.append("")
+        if w.get("secure_rows"):
+            lines.append("**Wire cost with DDS Security** (same namespace, same steps; plain from the table above)")
+            lines.append("")
+            lines.append("| N | bytes per step, plain | secure | secure / plain | steps/s over UDP, plain / secure |")
+            lines.append("| --- | --- | --- | --- | --- |")
+            for r in w["secure_rows"]:
+                lines.append(f"| {r['n']} | {fmt(r['plain_bytes_per_step'], '.0f')} | {fmt(r['bytes_per_step'], '.0f')} | "
+                             f"{fmt(r['bytes_ratio_secure_over_plain'], '.2f')} | "
+                             f"{fmt(r['plain_steps_per_s_udp'], '.0f')} / {fmt(r['steps_per_s_udp'], '.0f')} |")
+            lines.append("")
     elif w and "error" in w:
         lines.append(f"_wire: failed: {w['error'].splitlines()[-1] if w['error'] else '?'}_")
         lines.append("")
