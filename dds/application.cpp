@@ -214,7 +214,8 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     // This process's certificate, key and permissions (docs/SECURITY.md), before anything
     // starts: Fast DDS would only fail to create the participant, or never match a peer.
     try {
-      CheckSecurityFiles(FilesOf(context.config.network.security.dir, spec.logger_name()));
+      const std::string identity = spec.identity_name ? spec.identity_name() : spec.logger_name();
+      CheckSecurityFiles(FilesOf(context.config.network.security.dir, identity));
     } catch (const SecurityError& e) {
       return fail(protocol::kExitBadConfig, std::string("security: ") + e.what());
     }

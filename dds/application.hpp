@@ -58,8 +58,10 @@ struct ProcessSpec {
   // Adds the executable's own options.
   std::function<void(CLI::App&)> add_options;
   // The logger's (and log file's) name, e.g. "agent-3"; also the DDS participant's name,
-  // by which it finds its security files (docs/SECURITY.md).
+  // by which it finds its security files (docs/SECURITY.md), unless identity_name is set.
   std::function<std::string()> logger_name;
+  // The name of its security identity where it differs from logger_name ("observer-1").
+  std::function<std::string()> identity_name;
   // Checks the executable's own options against the config; throws ConfigError.
   std::function<void(const Config&)> check;
   // Makes the application (after every check passed).

@@ -268,6 +268,7 @@ int main(int argc, char** argv) {
         ->check(CLI::Range(0, 19));
   };
   spec.logger_name = [] { return std::string("observer"); };
+  spec.identity_name = [&options] { return "observer-" + std::to_string(options.observer_id); };
   spec.make = [&options](deif::dds::ProcessContext& context) {
     return std::make_unique<deif::observer::Observer>(context, options);
   };

@@ -388,3 +388,26 @@ def test_bad_files(work, domain):
     _, err = p.communicate(timeout=30)
     assert p.returncode == 0, err[-800:]
     assert os.path.exists(os.path.join(run_dir, "agent_1.csv"))
+
+
+def test_live_observer(work, domain):
+    """deif-run --secure --live: the observer authenticates as observer-1 (its own
+    certificate, not the process name's), reads the secure run and ends with status 0; its
+    per-step figures cover every step with all four agents alive and the error of agent 1,
+    the lowest live id, against the truth."""
+    res = launcher.run(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=60, domain=domain,
+                       progress=False, secure=True, live=0)
+    assert res.ok, res.summary["processes"]
+    observer = next(p for p in res.summary["processes"] if p["name"] == "observer")
+    assert observer["exit_status"] == 0, observer
+    live = {int(r["step"]): r for r in artefacts.read_csv(os.path.join(res.out_dir, "observer.csv"))}
+    assert sorted(live) == list(range(1, 61))
+    assert all(int(r["alive"]) == 4 for r in live.values())
+    truth = {int(r["step"]): r for r in artefacts.read_csv(os.path.join(res.out_dir, "target.csv"))}
+    agent_1 = {int(r["step"]): r for r in rows(res.out_dir, 1)}
+    with_estimate = [k for k, r in live.items() if r["agent"] == "1"]
+    assert len(with_estimate) >= 48, f"only {len(with_estimate)} of 60 steps with an estimate"
+    for k in with_estimate:
+        err = ((float(agent_1[k]["x_est"]) - float(truth[k]["x_true"])) ** 2
+               + (float(agent_1[k]["y_est"]) - float(truth[k]["y_true"])) ** 2) ** 0.5
+        assert abs(float(live[k]["error"]) - err) <= 1e-12 * max(1.0, err), k
