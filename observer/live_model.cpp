@@ -235,6 +235,11 @@ void LiveModel::AddMark(double now_s, const std::string& kind, AgentId agent, co
   Touch(now_s);
 }
 
+void LiveModel::OnUnauthorised(AgentId claimed, double now_s) {
+  (void)claimed;
+  Ignore("a state its writer may not write (not_authorised)", now_s);
+}
+
 void LiveModel::Ignore(const std::string& reason, double now_s) {
   ++ignored_;
   if (ignored_marked_.insert(reason).second) {

@@ -87,6 +87,9 @@ class LiveModel {
   void OnState(const protocol::StateMsg& msg, const protocol::SenderKey& from,
                double written_unix_s, double now_s);
   void OnLiveliness(WriterKind kind, const protocol::SenderKey& writer, bool alive, double now_s);
+  // With DDS Security the transport knows that a state's writer may not speak for the id it
+  // claims (docs/SECURITY.md): the state is ignored and counted, never shown.
+  void OnUnauthorised(AgentId claimed, double now_s);
   // now_s is the observer's clock in seconds (monotonic; e.g. since its start).
   // Staleness, settled steps, throttled marks: call after every batch of samples and at
   // least every 100 ms. Incomplete steps are given up only here.

@@ -163,6 +163,10 @@ class Observer : public dds::Application {
     } else if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
       model_.OnRange(range->msg, range->from, now);
     } else if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+      if (node_.Secure() && node_.AuthorizedAgent(state->from) != state->msg.agent_id) {
+        model_.OnUnauthorised(state->msg.agent_id, now);
+        return;
+      }
       model_.OnState(state->msg, state->from, state->written_unix_s, now);
     } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
       const WriterKind kind = change->topic == dds::Topic::kAgentState ? WriterKind::kState

@@ -78,15 +78,18 @@ def stop_run(lau, wait_s=30.0):
     lau.terminate_all()
 
 
-def with_hostiles(work, domain, hostiles, at_step=30, after_steps=100):
+def with_hostiles(work, domain, hostiles, at_step=30, after_steps=100, live=False):
     """A secure lock-step run with hostile peers started together at `at_step`. Each stays in
     the domain (--linger) once done, so that no participant leaves while the run is observed.
     When all are done, the run goes on for `after_steps` more steps and is then stopped
     (SIGTERM: every process writes its rows and counters and exits 0), so that the attack
     falls inside the run whatever the machine's speed. Returns (result, [(exit status,
-    stdout, stderr)], the step the run was at when the hostiles were done)."""
+    stdout, stderr)], the step the run was at when the hostiles were done). live: with the
+    live view's observer."""
     lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=100000,
                             domain=domain, progress=False, secure=True, overrides=STALL_PROOF)
+    if live:
+        lau.live_port = 0
     outcomes, procs = [], []
     try:
         lau.start()
@@ -189,7 +192,7 @@ def test_claimed_id(work, domain):
     authorised for id 3. None is fused: every agent wrote every step with every contribution
     of its roll call, all agree, and every estimate equals the centralized EIF replayed over
     the ranges the target actually sent, to 1e-9 (a forged contribution fused once would
-    move it by far more).
+    move it by far more). The live view's observer ignores the forged states too.
 
     Not compared with the simulation: the burst can evict agent 3's own state from the
     target's reader (keep-last per key) before it is read, so that agent 3 sits out a roll
@@ -198,7 +201,7 @@ def test_claimed_id(work, domain):
     res, outcomes, done_at = with_hostiles(work, domain, [
         lambda lau: hostile_argv(lau, "impersonate", "--claim", "3", "--seconds", "3",
                                  "--name", "agent-2"),
-    ])
+    ], live=True)
     code, out, err = outcomes[0]
     assert code == 0, err[-800:]
     assert sent(out) > 0 and received(out) > 0, out
@@ -218,6 +221,8 @@ def test_claimed_id(work, domain):
     worst, replayed = central_difference(res, work)
     assert replayed > done_at
     assert worst <= 1e-9, f"largest difference from the centralized EIF {worst:.3g}"
+    marks = artefacts.read_csv(os.path.join(res.out_dir, "observer_marks.csv"))
+    assert any(m["kind"] == "ignored" and "not_authorised" in m["text"] for m in marks), marks
 
 
 def test_roles(work, domain):

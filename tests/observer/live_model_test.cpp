@@ -122,6 +122,16 @@ TEST_CASE("live model: another run's samples are ignored and counted, never show
   CHECK(CountMarks(model, "ignored", 0) == 1);  // one mark per reason
 }
 
+TEST_CASE("live model: a state its writer may not write is ignored and counted, never shown") {
+  LiveModel model(ThreeAgents(), kRun, "r");
+  model.OnUnauthorised(2, 0.1);
+  model.OnUnauthorised(3, 0.2);
+  CHECK(model.ignored() == 2);
+  CHECK(model.StatusOf(2) == "never");
+  CHECK(model.StatusOf(3) == "never");
+  CHECK(CountMarks(model, "ignored", 0) == 1);
+}
+
 TEST_CASE("live model: an agent silent while the others go on becomes stale") {
   LiveModel model(ThreeAgents(100), kRun, "r");
   AllWrite(model, 5, 0.0, {0.0, 2.0, 4.0});
