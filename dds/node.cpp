@@ -84,10 +84,13 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
 // Liveliness and heartbeat traffic grow as N^2 (every writer to every matched reader). On a
 // busy host that traffic is what starves the processes, and starved processes look dead:
 // the effective timings are derived so that the whole network's liveliness assertions stay
-// within kLivelinessBudgetPerS messages per second, and a heartbeat is not sent more often
-// than kHeartbeatFloorPerAgentS per agent (docs/BENCHMARKS.md, large networks).
+// within kLivelinessBudgetPerS messages per second, and their heartbeats (each writer's to
+// each matched reader while a sample is unacknowledged) within kHeartbeatBudgetPerS
+// (docs/BENCHMARKS.md, "Heartbeats at large N"). At N = 64 on 2 cores a 32 ms heartbeat
+// made 1.4-1.6 steps/s and 0.2-0.3 s made 3.4-3.5: slow acknowledgements under load draw
+// more heartbeats, which draw more acknowledgements.
 constexpr double kLivelinessBudgetPerS = 4000.0;
-constexpr double kHeartbeatFloorPerAgentS = 0.0005;
+constexpr double kHeartbeatBudgetPerS = 20000.0;
 
 }  // namespace
 
@@ -100,8 +103,7 @@ Timings EffectiveTimings(const Config& config) {
   const double affordable = kLivelinessBudgetPerS * t.liveliness_lease_s / pairs;
   t.assertions_per_lease =
       std::max(1, std::min(net.liveliness_assertions_per_lease, static_cast<int>(affordable)));
-  t.heartbeat_period_s =
-      std::max(net.heartbeat_period_s, kHeartbeatFloorPerAgentS * config.agents.count);
+  t.heartbeat_period_s = std::max(net.heartbeat_period_s, pairs / kHeartbeatBudgetPerS);
   return t;
 }
 
