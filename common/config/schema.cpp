@@ -539,7 +539,7 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Doc("Heartbeat period of the reliable writers: a lost sample is repaired about one "
            "period later. Fast DDS's default of 3 s is far longer than a step. Heartbeats "
            "are sent only while samples are unacknowledged. 5 ms repairs a loss well within "
-           "a 10 Hz step at 20 % loss (docs/PROTOCOL.md, measured with deif_sim). From about "
+           "a 10 Hz step at 20 % loss (docs/PROTOCOL.md, measured with deif_sim). From 10 "
            "agents on, the processes use a longer period, so that the network's "
            "heartbeats stay within a budget (docs/BENCHMARKS.md, \"Heartbeats at large N\").");
   t.Add("nack_response_delay_s",
