@@ -460,12 +460,7 @@ TEST_CASE("A member frozen for fewer steps than the history catches up exactly",
   net.Start();
   net.RunUntil(3);
   // GIVEN agent 3 is frozen: nothing reaches it, it sends nothing, the others see it lost
-  const auto frozen = [](const Envelope& e) { return e.to == 3 || e.from == 3; };
-  net.frozen.insert(3);
-  net.Pump(frozen);
-  net.Liveliness(1, 3, false);
-  net.Liveliness(2, 3, false);
-  net.Liveliness(deif::testing::kTarget, 3, false);
+  const auto frozen = net.Freeze(3);
   net.RunUntil(8, frozen);
   CHECK(net.agents.at(3)->last_written_step() == 3);
   // WHEN it resumes and its backlog arrives
@@ -712,12 +707,7 @@ std::vector<deif::AgentRow> ResumeAfterLongFreeze(bool contributions_first, long
   ScriptedNetwork net(kThreeAgents);
   net.Start();
   net.RunUntil(3);
-  const auto frozen = [](const Envelope& e) { return e.to == 3 || e.from == 3; };
-  net.frozen.insert(3);
-  net.Pump(frozen);
-  net.Liveliness(1, 3, false);
-  net.Liveliness(2, 3, false);
-  net.Liveliness(deif::testing::kTarget, 3, false);
+  const auto frozen = net.Freeze(3);
   net.RunUntil(20, frozen);
   const auto step_of = [](const Envelope& e) {
     return std::visit([](const auto& m) -> StepIndex { return m.step; }, e.message);

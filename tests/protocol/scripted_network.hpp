@@ -73,6 +73,19 @@ class ScriptedNetwork {
     CollectTarget();
   }
 
+  // Freezes agent id (SIGSTOP): nothing reaches it, it sends nothing, and every other node
+  // sees its writers lost. Returns the hold for Pump and RunUntil while it stays frozen.
+  std::function<bool(const Envelope&)> Freeze(AgentId id) {
+    const auto hold = [id](const Envelope& e) { return e.to == id || e.from == id; };
+    frozen.insert(id);
+    Pump(hold);
+    for (const auto& entry : agents) {
+      if (entry.first != id) Liveliness(entry.first, id, false);
+    }
+    Liveliness(kTarget, id, false);
+    return hold;
+  }
+
   // What agent id's transport reports it has matched (AgentProtocol::OnPeersMatched).
   void PeersMatched(AgentId id, int matched, int range_writers) {
     agents.at(id)->OnPeersMatched(matched, range_writers, now);
