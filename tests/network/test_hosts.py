@@ -64,10 +64,15 @@ def test_realtime_10_percent_loss(work, domain):
 def test_partition_and_heal(work, domain):
     """Real time: host 3 (agents 2 and 4) is cut off for 3 s. Every agent writes every step
     throughout; each side tracks with its own members; after the heal the agents agree
-    again, exactly, and the ring holds all four. (From 20 steps after the heal, the one
-    disagreement allowed is real time's own: a row written at its deadline before a late
-    contribution came, on a loaded machine. That contribution is fused into its step, so the
-    next row agrees again: never two disagreeing steps in a row, and at least 95 % agree.)"""
+    again, exactly, and the ring holds all four.
+
+    From 20 steps after the heal: every settled step (each agent's rows of it and of the two
+    steps before are complete: every contribution of the roll call was in by the deadline)
+    agrees exactly, and at least half the steps are settled. A heal that left the agents'
+    histories different fails this: their priors differ, so complete rows disagree too. The
+    disagreements allowed are real time's own: a row written at its deadline without a
+    contribution that came late on a loaded machine (docs/PROTOCOL.md, "Eventual
+    exactness"); at least 80 % of the steps agree all the same."""
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=250, hosts=3,
                        overrides=REALTIME, partitions=[launcher.Partition(80, 3.0, 3)], progress=False)
     assert res.ok, res.summary["processes"]
@@ -77,11 +82,20 @@ def test_partition_and_heal(work, domain):
     assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
     during = [int(r["alive"]) for r in rows(res.out_dir, 1)[p["cut_at_step"] + 10:healed - 5]]
     assert during and max(during) == 2, "each side tracks with its own members"
-    per_step = artefacts.read_csv(os.path.join(res.out_dir, "metrics.csv"))
-    after = [float(s["max_disagreement"]) for s in per_step if int(s["step"]) >= healed + 20]
-    apart = [d > 1e-6 for d in after]
-    assert after and not any(a and b for a, b in zip(apart, apart[1:])), \
-        f"disagreements after the heal: {[round(d, 4) for d in after if d > 1e-6]}"
-    assert sum(apart) <= 0.05 * len(after), f"{sum(apart)} of {len(after)} steps disagree after the heal"
+    by_agent = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in range(1, 5)}
+    after = range(healed + 20, 251)
+
+    def complete(k):
+        return all(by_agent[j][k]["complete"] == "1" for j in by_agent)
+
+    def agree(k):
+        return len({(by_agent[j][k]["x_est"], by_agent[j][k]["y_est"]) for j in by_agent}) == 1
+
+    settled = [k for k in after if complete(k - 2) and complete(k - 1) and complete(k)]
+    assert len(settled) >= 0.5 * len(after), f"only {len(settled)} of {len(after)} steps settled"
+    assert all(agree(k) for k in settled), \
+        f"settled steps that disagree after the heal: {[k for k in settled if not agree(k)]}"
+    agreeing = sum(agree(k) for k in after)
+    assert agreeing >= 0.8 * len(after), f"{agreeing} of {len(after)} steps agree after the heal"
     for j in range(1, 5):
         assert all(r["alive"] == "4" for r in rows(res.out_dir, j)[healed + 20:])
