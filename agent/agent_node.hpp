@@ -31,8 +31,9 @@ class AgentNode : public dds::Application {
   // when its permissions name that id (docs/SECURITY.md).
   bool Authorised(AgentId claimed, const protocol::SenderKey& writer) const;
   void Execute(std::vector<protocol::AgentAction> actions);
-  // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
+  // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   void ReportMatches(double now_s);
+  // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
   void WriteCounters() const;
 
   dds::ProcessContext& context_;

@@ -184,10 +184,7 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
   if (ever_opened_) {
     auto first_far = early_.upper_bound(reach);
     while (static_cast<StepIndex>(std::distance(first_far, early_.end())) > span + 1) {
-      for (const auto& [id, evicted] : first_far->second) {
-        (void)evicted;
-        Drop("agent " + std::to_string(id), "too_far_ahead");
-      }
+      for (const auto& entry : first_far->second) Drop("agent " + std::to_string(entry.first), "too_far_ahead");
       first_far = early_.erase(first_far);
     }
   }
