@@ -136,6 +136,26 @@ def proc_hwm_kb(pid):
     return None
 
 
+def proc_memory_kb(pid):
+    """What a live process costs the host [kB], from /proc/PID/smaps_rollup: "pss", its
+    proportional share (each shared page divided among the processes that map it: the
+    shared libraries and the peers' shared-memory segments), and "private", the pages no
+    other process maps. RSS counts every shared page in full in every process
+    (docs/BENCHMARKS.md, "Memory per agent"). None if it is gone."""
+    out = {}
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            for line in f:
+                key, _, rest = line.partition(":")
+                if key in ("Pss", "Private_Clean", "Private_Dirty"):
+                    out[key] = int(rest.split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    if "Pss" not in out:
+        return None
+    return {"pss": out["Pss"], "private": out.get("Private_Clean", 0) + out.get("Private_Dirty", 0)}
+
+
 def run_processes(parent=None):
     """{name: pid} of the target and agent processes started by this process (the launcher
     runs them as our children): 'target' and 'agent_<id>'."""
@@ -227,7 +247,8 @@ def run_pingpong(exe, transport, samples, domain):
 # ---------------------------------------------------------------------------------------
 # One lock-step run, watched
 class Monitor(threading.Thread):
-    """Samples the run's processes while it lasts: peak RSS of each, CPU and the loopback
+    """Samples the run's processes while it lasts: peak RSS of each, peak PSS and private
+    memory (every 2 s and at s1: reading them walks the page tables), CPU and the loopback
     counters at two steady-state points (steps s0 and s1). The step is the last row of
     the run's target.csv."""
 
@@ -236,6 +257,7 @@ class Monitor(threading.Thread):
         self.out_dir = out_dir
         self.s0, self.s1 = s0, s1
         self.hwm_kb = {}
+        self.pss_kb, self.private_kb = {}, {}
         self.marks = {}  # "s0"/"s1"/"last" -> {step, t, cpu_s, lo_bytes, lo_packets}
         self.done = threading.Event()
 
@@ -253,8 +275,15 @@ class Monitor(threading.Thread):
         lo_b, lo_p = lo_counters()
         self.marks[key] = {"step": step, "t": t, "cpu_s": cpu, "lo_bytes": lo_b, "lo_packets": lo_p}
 
+    def sample_memory(self, pids):
+        for name, pid in pids.items():
+            m = proc_memory_kb(pid)
+            if m is not None:
+                self.pss_kb[name] = max(self.pss_kb.get(name, 0), m["pss"])
+                self.private_kb[name] = max(self.private_kb.get(name, 0), m["private"])
+
     def run(self):
-        last_hwm = last_scan = 0.0
+        last_hwm = last_scan = last_pss = 0.0
         pids = {}
         while not self.done.is_set():
             if time.monotonic() - last_scan > 0.5:  # the processes rarely change
@@ -264,6 +293,7 @@ class Monitor(threading.Thread):
                 self.mark("s0", step, pids)
             if "s0" in self.marks and "s1" not in self.marks and step >= self.s1:
                 self.mark("s1", step, pids)
+                self.sample_memory(pids)
             now = time.monotonic()
             # A run that does not reach s1 (a timeout) still gets a steady-state figure.
             if "s0" in self.marks and "s1" not in self.marks and now - self.marks.get(
@@ -275,6 +305,9 @@ class Monitor(threading.Thread):
                     if v is not None:
                         self.hwm_kb[name] = max(self.hwm_kb.get(name, 0), v)
                 last_hwm = now
+            if now - last_pss > 2.0 and "s0" in self.marks:
+                self.sample_memory(pids)
+                last_pss = now
             time.sleep(0.01)
 
 
@@ -404,6 +437,10 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
     agents_kb = [v for k, v in monitor.hwm_kb.items() if k.startswith("agent_")]
     fig["rss_mb"] = {"agent_median": mb(median(agents_kb)), "agent_max": mb(max(agents_kb) if agents_kb else None),
                      "target": mb(monitor.hwm_kb.get("target")), "agents_sampled": len(agents_kb)}
+    for key, peaks in (("pss_mb", monitor.pss_kb), ("private_mb", monitor.private_kb)):
+        kb = [v for k, v in peaks.items() if k.startswith("agent_")]
+        fig[key] = {"agent_median": mb(median(kb)), "agent_max": mb(max(kb) if kb else None),
+                    "agents_sampled": len(kb)}
     fig["out_dir"] = out_dir
     return fig
 
@@ -609,8 +646,8 @@ def make_table(res):
         lines.append("")
         lines.append("| N | finished | steps/s (observed) | steps/s (steady, target.csv) | steps/s (target log) "
                      "| step latency p50 [ms] | p99 [ms] | discovery to first fused step [s] | CPU per step [ms] "
-                     "| peak RSS per agent, median / max [MB] |")
-        lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+                     "| peak RSS per agent, median / max [MB] | peak PSS per agent, median / max [MB] |")
+        lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
         for n, f in sorted(res["lockstep"].items(), key=lambda kv: int(kv[0])):
             st = f.get("steady") or {}
             cpu = st.get("cpu_s_per_step")
@@ -621,7 +658,8 @@ def make_table(res):
                 f"{fmt((f.get('latency_ms') or {}).get('p50'), '.2f')} | {fmt((f.get('latency_ms') or {}).get('p99'), '.2f')} | "
                 f"{fmt((f.get('discovery_s') or {}).get('first_fused_all'), '.2f')} | "
                 f"{fmt(cpu * 1000 if cpu is not None else None, '.2f')} | "
-                f"{fmt((f.get('rss_mb') or {}).get('agent_median'))} / {fmt((f.get('rss_mb') or {}).get('agent_max'))} |")
+                f"{fmt((f.get('rss_mb') or {}).get('agent_median'))} / {fmt((f.get('rss_mb') or {}).get('agent_max'))} | "
+                f"{fmt((f.get('pss_mb') or {}).get('agent_median'))} / {fmt((f.get('pss_mb') or {}).get('agent_max'))} |")
         lines.append("")
     g = res.get("goals", {})
     if g.get("rows"):
@@ -746,6 +784,12 @@ def evaluate_goals(res):
         worst = max([(f.get("rss_mb") or {}).get("agent_max") or 0 for f in lock.values()] or [0])
         rows.append({"goal": f"resident memory <= {GOALS['rss_mb']:.0f} MB per agent (every N)",
                      "measured": f"max {fmt(worst)} MB", "met": "yes" if worst and worst <= GOALS["rss_mb"] else "no"})
+        # The same bound on what an agent costs the host: its proportional share of the
+        # shared libraries and segments that RSS counts in full in every process.
+        pss = [(f.get("pss_mb") or {}).get("agent_max") for f in lock.values()]
+        if pss and all(v is not None for v in pss):
+            rows.append({"goal": f"proportional memory (PSS) <= {GOALS['rss_mb']:.0f} MB per agent (every N)",
+                         "measured": f"max {fmt(max(pss))} MB", "met": yes_no(max(pss) <= GOALS["rss_mb"])})
     res["goals"] = {"rows": rows}
 
 

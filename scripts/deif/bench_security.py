@@ -22,6 +22,11 @@ from . import certs
 
 CASES = ((4, "shm"), (4, "udp"), (16, "udp"))  # (N, network.transport)
 GOAL_CASE = (4, "shm")
+# Where the secure time goes (docs/BENCHMARKS.md, "Security"): at GOAL_CASE also runs whose
+# governance protects less. "submessages-none" is `scripts/deif-certs --submessages none`;
+# "no-crypto" authenticates and checks permissions but neither signs nor encrypts anything
+# of the user topics: a measurement only, not a configuration anyone should run.
+LEVELS = ("submessages-none", "no-crypto")
 GOAL_RATIO = 1.5  # secure lock-step at N = 4 within 1.5x of plain (steps/s)
 
 # (key, label, unit, getter, higher is better)
@@ -57,10 +62,22 @@ def _key(n, transport):
     return f"{n} {transport}"
 
 
-def _certs_for(n, work_dir):
-    """A folder with the files of the target, agent-1..N and the step observer."""
-    folder = os.path.join(work_dir, f"security-certs-n{n}")
-    certs.ensure(folder, n, observers=1)
+def _certs_for(n, work_dir, level="secure"):
+    """A folder with the files of the target, agent-1..N and the step observer, under the
+    governance of `level` ("secure" or one of LEVELS)."""
+    folder = os.path.join(work_dir, f"security-certs-n{n}-{level}")
+    if level == "no-crypto":
+        plain_payloads = certs.governance_xml("NONE").replace(
+            "<data_protection_kind>ENCRYPT</data_protection_kind>",
+            "<data_protection_kind>NONE</data_protection_kind>")
+        original, certs.governance_xml = certs.governance_xml, lambda _: plain_payloads
+        try:
+            certs.ensure(folder, n, observers=1)
+        finally:
+            certs.governance_xml = original
+    else:
+        certs.ensure(folder, n, observers=1,
+                     submessages="NONE" if level == "submessages-none" else "SIGN")
     for suffix in (".cert.pem", ".key.pem", ".permissions.p7s"):
         shutil.copy(os.path.join(folder, "observer-1" + suffix),
                     os.path.join(folder, "bench-observer" + suffix))
@@ -74,18 +91,21 @@ def run_security(quick, domains, work_dir):
         log(f"security: no step latency or discovery figures: {why}")
     reps = 1 if quick else 3
     out = {"reps": reps, "runs": {}, "skipped_observer": why}
-    folders = {n: _certs_for(n, work_dir) for n in sorted({n for n, _ in CASES})}
+    folders = {(n, "secure"): _certs_for(n, work_dir) for n in sorted({n for n, _ in CASES})}
+    folders.update({(GOAL_CASE[0], level): _certs_for(GOAL_CASE[0], work_dir, level)
+                    for level in LEVELS})
     for rep in range(reps):
         for n, transport in CASES:
             steps = lockstep_steps(n, quick)
             cap = (60.0 if n <= 8 else 150.0) if quick else (120.0 if n <= 8 else 300.0)
             # Alternate which goes first, so that neither always meets the other's leftovers.
-            order = ("secure", "plain") if rep % 2 == 0 else ("plain", "secure")
+            modes = ("secure", "plain") + (LEVELS if (n, transport) == GOAL_CASE else ())
+            order = modes if rep % 2 == 0 else modes[::-1]
             for mode in order:
                 overrides = [f"network.transport={transport}"]
-                if mode == "secure":
+                if mode != "plain":
                     overrides += ["network.security.enabled=true",
-                                  f"network.security.dir={folders[n]}"]
+                                  f"network.security.dir={folders[(n, mode)]}"]
                 log(f"security: {mode} lock-step N={n} over {transport}, {steps} steps "
                     f"(rep {rep + 1}/{reps})")
                 fig = lockstep_run(n, steps, domains.take(), work_dir, observer_exe,
@@ -101,6 +121,11 @@ def run_security(quick, domains, work_dir):
                         "ratio": (secure / plain) if plain and secure is not None else None}
         row["runs_ok"] = {m: sum(1 for f in v if f.get("ok")) for m, v in modes.items()}
         out["medians"][n] = row
+        for level in (lv for lv in LEVELS if lv in modes):
+            fig = {key: _median([get(f) for f in modes[level] if f.get("ok")])
+                   for key, _, _, get, _ in FIGURES}
+            fig["runs_ok"] = row["runs_ok"].get(level, 0)
+            out.setdefault("levels", {}).setdefault(n, {})[level] = fig
     goal = (out["medians"].get(_key(*GOAL_CASE)) or {}).get("steps_per_s") or {}
     if goal.get("ratio"):
         slowdown = 1.0 / goal["ratio"]
@@ -135,6 +160,30 @@ def make_table(sec):
             lines.append(f"| {n} | runs that completed | {ok.get('plain', 0)}/{sec['reps']} | "
                          f"{ok.get('secure', 0)}/{sec['reps']} | |")
     lines.append("")
+    for n, levels in sec.get("levels", {}).items():
+        row = sec["medians"][n]
+        lines.append(f"**Where the secure time goes** (N, transport = {n}; the same invocation; "
+                     "ratio = steps/s of plain / steps/s of the level)")
+        lines.append("")
+        lines.append("| governance | steps/s | plain / level | CPU per step [ms] | step latency p50 [ms] "
+                     "| runs that completed |")
+        lines.append("| --- | --- | --- | --- | --- | --- |")
+        plain_rate = (row.get("steps_per_s") or {}).get("plain")
+        ok = row.get("runs_ok", {})
+        entries = [("plain (no security)", {k: (row.get(k) or {}).get("plain") for k in row}, ok.get("plain", 0)),
+                   ("secure: submessages signed, payloads encrypted (default)",
+                    {k: (row.get(k) or {}).get("secure") for k in row}, ok.get("secure", 0)),
+                   ("secure: submessages not protected, payloads encrypted (--submessages none)",
+                    levels.get("submessages-none", {}), levels.get("submessages-none", {}).get("runs_ok", 0)),
+                   ("authenticated and access-controlled, nothing signed or encrypted (measurement only)",
+                    levels.get("no-crypto", {}), levels.get("no-crypto", {}).get("runs_ok", 0))]
+        for label, fig, runs in entries:
+            rate = fig.get("steps_per_s")
+            ratio = f"{plain_rate / rate:.2f}" if plain_rate and rate else "-"
+            lines.append(f"| {label} | {_fmt(rate, 'steps/s')} | {ratio} | "
+                         f"{_fmt(fig.get('cpu_ms_per_step'), 'ms')} | {_fmt(fig.get('latency_p50_ms'), 'ms')} "
+                         f"| {runs}/{sec['reps']} |")
+        lines.append("")
     goal = sec.get("goal")
     if goal:
         lines.append(f"Goal: {goal['name']}: plain is {goal['plain_over_secure']:.2f}x as fast "

@@ -117,9 +117,16 @@ def iso(t):
 
 # ---------------------------------------------------------------------------------------
 # The documents
-def governance_xml():
-    """Discovery, liveliness and data protected; nobody unauthenticated; payloads encrypted
-    and every submessage signed (docs/SECURITY.md, "Governance")."""
+SUBMESSAGE_PROTECTION = ("SIGN", "ENCRYPT", "NONE")  # metadata_protection_kind
+
+
+def governance_xml(submessages="SIGN"):
+    """Discovery, liveliness and data protected; nobody unauthenticated; payloads encrypted;
+    every submessage of the user topics (data, heartbeat, acknowledgement, gap) signed,
+    encrypted or left as it is (`submessages`; docs/SECURITY.md, "Submessage protection")."""
+    if submessages not in SUBMESSAGE_PROTECTION:
+        raise CertsError(f"--submessages {submessages.lower()}: must be one of "
+                         + ", ".join(k.lower() for k in SUBMESSAGE_PROTECTION))
     return """<?xml version="1.0" encoding="UTF-8"?>
 <!-- deif-network governance (docs/SECURITY.md), made by scripts/deif-certs -->
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance"
@@ -141,14 +148,14 @@ def governance_xml():
           <enable_liveliness_protection>true</enable_liveliness_protection>
           <enable_read_access_control>true</enable_read_access_control>
           <enable_write_access_control>true</enable_write_access_control>
-          <metadata_protection_kind>SIGN</metadata_protection_kind>
+          <metadata_protection_kind>%s</metadata_protection_kind>
           <data_protection_kind>ENCRYPT</data_protection_kind>
         </topic_rule>
       </topic_access_rules>
     </domain_rule>
   </domain_access_rules>
 </dds>
-"""
+""" % submessages
 
 
 def criteria(kind, topics, partitions):
@@ -301,11 +308,12 @@ class Issuer:
         self.note(f"{base}.p7s", why)
 
 
-def ensure(folder, agents, observers=1, days=365, run=None, log=None):
+def ensure(folder, agents, observers=1, days=365, run=None, log=None, submessages="SIGN"):
     """Makes `folder` hold a CA and every file of target, agent-1..agent-N and
-    observer-1..M (see the module's docstring). Returns {"issued": [...], "kept": [...]}.
-    Raises CertsError (one line)."""
+    observer-1..M (see the module's docstring), with the governance of `submessages`.
+    Returns {"issued": [...], "kept": [...]}. Raises CertsError (one line)."""
     log = log or (lambda msg: None)
+    governance = governance_xml(submessages)
     if not 1 <= agents <= MAX_AGENTS:
         raise CertsError(f"--agents {agents}: must be in 1..{MAX_AGENTS}")
     if not 0 <= observers <= 64:
@@ -324,7 +332,7 @@ def ensure(folder, agents, observers=1, days=365, run=None, log=None):
     issuer = Issuer(folder, days, log)
     try:
         new_ca = issuer.ensure_ca()
-        issuer.ensure_signed("governance", governance_xml(), "new CA" if new_ca else None)
+        issuer.ensure_signed("governance", governance, "new CA" if new_ca else None)
         now = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0, tzinfo=None)
         # A day's margin before: Fast DDS reads the validity in local time.
         not_before, not_after = now - datetime.timedelta(days=1), now + datetime.timedelta(days=days)

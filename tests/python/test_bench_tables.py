@@ -72,11 +72,13 @@ def made_up_results():
     lock = {"4": {"n": 4, "steps": 300, "ok": True, "last_step": 300, "final_agents": 4,
                   "latency_ms": {"p50": 1.0, "p99": 2.0}, "steps_per_s": 500.0,
                   "steady": {"steps_per_s": 480.0, "cpu_s_per_step": 0.002},
-                  "discovery_s": {"first_fused_all": 1.1}, "rss_mb": {"agent_median": 18.0, "agent_max": 19.0}},
+                  "discovery_s": {"first_fused_all": 1.1}, "rss_mb": {"agent_median": 18.0, "agent_max": 19.0},
+                  "pss_mb": {"agent_median": 6.0, "agent_max": 6.5}},
             "64": {"n": 64, "steps": 60, "ok": True, "last_step": 60, "final_agents": 64,
                    "timed_out_s": None, "steady": {"steps_per_s": 3.0, "cpu_s_per_step": 0.026},
                    "discovery_s": {"first_fused_all": 1.5},
-                   "rss_mb": {"agent_median": 21.0, "agent_max": 22.0}}}
+                   "rss_mb": {"agent_median": 21.0, "agent_max": 22.0},
+                   "pss_mb": {"agent_median": 9.0, "agent_max": 20.5}}}
     return {"pingpong": {"shm": [{"rtt_p50_us": 100.0, "rtt_p99_us": 200.0}],
                          "udp": [{"rtt_p50_us": 130.0, "rtt_p99_us": 260.0}], "shm_p50_us_median": 100.0},
             "lockstep": lock,
@@ -104,11 +106,14 @@ def test_goals_and_tables_from_made_up_figures():
                      "64 agents: launch to the first step fused by all <= 2 s": "yes",
                      "kill-to-exclusion p99 < 0.5 s": "yes",
                      # 22 MB at N = 64
-                     "resident memory <= 20 MB per agent (every N)": "no"}
+                     "resident memory <= 20 MB per agent (every N)": "no",
+                     # 20.5 MB at N = 64
+                     "proportional memory (PSS) <= 20 MB per agent (every N)": "no"}
     table = bench.make_table(res)
     for heading in ("Raw floor", "Lock-step", "Goals", "Failure detection", "Wire cost", "Core micro-benchmarks"):
         assert f"**{heading}" in table, heading
     assert "| 4 | 300/300 ok | 500 | 480 |" in table
+    assert "| 18.0 / 19.0 | 6.0 / 6.5 |" in table
     assert "| BM_DeifAgentStep (model:0) | 1.00 |" in table
     assert "_pingpong: skipped: made up_" in table
 
@@ -173,3 +178,29 @@ def test_hostile_medians_slowdowns_and_goal_from_made_up_figures():
     table = bench_hostile.make_table(h)
     assert "| flood | 30000 | 300 | 2.67 | 1.10 | 0.0200 | 3/3 |" in table
     assert "worst slowdown 2.67: **not met**" in table
+
+
+def test_memory_of_a_live_process_and_of_a_gone_one():
+    m = bench.proc_memory_kb(os.getpid())
+    # PSS is the private pages plus a share of the shared ones, so never below them.
+    assert m is not None and 0 < m["private"] <= m["pss"]
+    assert m["pss"] <= bench.proc_hwm_kb(os.getpid())
+    assert bench.proc_memory_kb(2 ** 22 + 7) is None
+
+
+def test_security_table_with_protection_levels_from_made_up_figures():
+    from deif import bench_security
+    med = {key: {"plain": None, "secure": None, "ratio": None} for key, *_ in bench_security.FIGURES}
+    med["steps_per_s"] = {"plain": 800.0, "secure": 250.0, "ratio": 250.0 / 800.0}
+    med["runs_ok"] = {"plain": 1, "secure": 1, "submessages-none": 1, "no-crypto": 0}
+    sec = {"reps": 1, "medians": {"4 shm": med},
+           "levels": {"4 shm": {"submessages-none": {"steps_per_s": 400.0, "cpu_ms_per_step": 4.5,
+                                                     "runs_ok": 1},
+                                "no-crypto": {"steps_per_s": None, "runs_ok": 0}}},
+           "goal": {"name": "secure lock-step at N = 4 (shm) within 1.5x of plain",
+                    "plain_over_secure": 3.2, "met": False}}
+    table = bench_security.make_table(sec)
+    assert "| 4 shm | lock-step rate [steps/s] | 800 | 250 | 0.31 |" in table
+    assert "(--submessages none) | 400 | 2.00 | 4.50 | - | 1/1 |" in table
+    assert "(measurement only) | - | - | - | - | 0/1 |" in table
+    assert "**not met**" in table
