@@ -98,11 +98,16 @@ Timings EffectiveTimings(const Config& config) {
   const NetworkConfig& net = config.network;
   const double pairs = static_cast<double>(config.agents.count) * (config.agents.count + 1);
   Timings t;
-  // At least one assertion per lease, and no more than the configured number or the budget.
-  t.liveliness_lease_s = std::max(net.liveliness_lease_s, pairs / kLivelinessBudgetPerS);
+  // No more assertions than configured or than the budget affords, and at least two per
+  // lease (one if so configured): the lease grows until the budget affords them. With a
+  // single assertion per lease, any delay of one assertion lets the lease run out; at
+  // N = 64 that was about 60 false losses in every start-up (docs/BENCHMARKS.md,
+  // "Liveliness at large N").
+  const int least = std::min(2, net.liveliness_assertions_per_lease);
+  t.liveliness_lease_s = std::max(net.liveliness_lease_s, least * pairs / kLivelinessBudgetPerS);
   const double affordable = kLivelinessBudgetPerS * t.liveliness_lease_s / pairs;
-  t.assertions_per_lease =
-      std::max(1, std::min(net.liveliness_assertions_per_lease, static_cast<int>(affordable)));
+  t.assertions_per_lease = std::max(
+      least, std::min(net.liveliness_assertions_per_lease, static_cast<int>(affordable + 1e-9)));
   t.heartbeat_period_s = std::max(net.heartbeat_period_s, pairs / kHeartbeatBudgetPerS);
   return t;
 }

@@ -475,7 +475,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Doc("MANUAL_BY_TOPIC liveliness lease of the agents' contribution and state writers. A "
            "killed agent is excluded about one lease after its last write (measured 0.40 s "
            "with 0.4, 0.50 s with 0.5). Shorter is quicker but risks excluding an agent that "
-           "is only starved of CPU (see configs/large.yaml).");
+           "is only starved of CPU (see configs/large.yaml). From 28 agents on, the processes "
+           "use a longer lease, so that two renewals per lease of every writer to every reader "
+           "stay within a budget: 2.08 s at 64 agents (docs/BENCHMARKS.md, \"Liveliness at "
+           "large N\").");
   t.Add("liveliness_grace_s", [](Config& c) -> auto& { return c.network.liveliness_grace_s; })
       .Default(0.2)
       .AtLeast(0.0)
@@ -493,7 +496,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .AtMost(100)
       .Doc("How many liveliness renewals an idle writer sends per lease. More survive packet "
            "loss: at 20 % loss, 8 per lease leave a 0.2^8 = 3e-6 chance of a false exclusion "
-           "per lease.");
+           "per lease. From 14 agents on the processes send fewer, within a budget of 4000 "
+           "renewal messages a second over the network, but never fewer than 2 per lease "
+           "(unless 1 is set here): 5 at 16 agents, 2 at 64 (docs/BENCHMARKS.md, \"Liveliness "
+           "at large N\").");
   t.Add("participant_lease_s", [](Config& c) -> auto& { return c.network.participant_lease_s; })
       .Default(5.0)
       .Seconds()

@@ -1,0 +1,65 @@
+// The liveliness and heartbeat timings the DDS adapter derives from the config and the
+// number of agents (dds/node.hpp, EffectiveTimings; docs/BENCHMARKS.md, "Liveliness at
+// large N" and "Heartbeats at large N").
+#include <catch2/catch.hpp>
+
+#include <string>
+
+#include "common/config/config.hpp"
+#include "dds/node.hpp"
+
+namespace {
+
+deif::Config WithAgents(int n, int assertions_per_lease = 8) {
+  return deif::ParseConfig("agents: {count: " + std::to_string(n) +
+                               "}\n"
+                               "network: {liveliness_lease_s: 0.4, liveliness_assertions_per_lease: " +
+                               std::to_string(assertions_per_lease) + ", heartbeat_period_s: 0.005}\n",
+                           "timings");
+}
+
+}  // namespace
+
+TEST_CASE("few agents keep the configured timings", "[dds][timings]") {
+  // 4 agents: 20 writer-reader pairs; 8 assertions per 0.4 s are 400 messages/s.
+  const deif::dds::Timings t = deif::dds::EffectiveTimings(WithAgents(4));
+  CHECK(t.liveliness_lease_s == Approx(0.4));
+  CHECK(t.assertions_per_lease == 8);
+  CHECK(t.heartbeat_period_s == Approx(0.005));
+}
+
+TEST_CASE("16 agents: fewer assertions, the same lease", "[dds][timings]") {
+  // 272 pairs: the 4000 messages/s budget affords 5.9 assertions per 0.4 s.
+  const deif::dds::Timings t = deif::dds::EffectiveTimings(WithAgents(16));
+  CHECK(t.liveliness_lease_s == Approx(0.4));
+  CHECK(t.assertions_per_lease == 5);
+  CHECK(t.heartbeat_period_s == Approx(272.0 / 20000.0));
+}
+
+TEST_CASE("64 agents: the lease grows so that two assertions fit in it", "[dds][timings]") {
+  // 4160 pairs: two assertions per lease within 4000 messages/s need a lease of 2.08 s. One
+  // assertion per lease (a 1.04 s lease) made about 60 false losses at every start-up.
+  const deif::dds::Timings t = deif::dds::EffectiveTimings(WithAgents(64));
+  CHECK(t.liveliness_lease_s == Approx(2.08));
+  CHECK(t.assertions_per_lease == 2);
+  CHECK(t.heartbeat_period_s == Approx(0.208));
+}
+
+TEST_CASE("one assertion per lease stays one when configured so", "[dds][timings]") {
+  const deif::dds::Timings t = deif::dds::EffectiveTimings(WithAgents(64, 1));
+  CHECK(t.liveliness_lease_s == Approx(1.04));
+  CHECK(t.assertions_per_lease == 1);
+}
+
+TEST_CASE("at every N the assertions stay within the budget and at least two per lease",
+          "[dds][timings]") {
+  for (int n = 2; n <= 256; ++n) {
+    const deif::dds::Timings t = deif::dds::EffectiveTimings(WithAgents(n));
+    const double pairs = static_cast<double>(n) * (n + 1);
+    INFO("N = " << n);
+    CHECK(t.assertions_per_lease >= 2);
+    CHECK(t.assertions_per_lease <= 8);
+    CHECK(t.liveliness_lease_s >= 0.4);
+    CHECK(t.assertions_per_lease * pairs / t.liveliness_lease_s <= 4000.0 * (1 + 1e-9));
+  }
+}
