@@ -221,8 +221,14 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
     if (network.transport == TransportKind::kShm) {
       // Fast DDS's default port (512 messages, 0.5 MiB segment): larger ones did not stop a
       // local flood from starving a neighbour and cost memory (docs/FASTDDS_NOTES.md).
-      qos.transport().user_transports.push_back(
-          std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>());
+      auto shm = std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>();
+      // A port whose listener has not stirred for this long is taken for a dead process's
+      // and removed; Fast DDS's 1 s took the port of a process that was only starved of CPU
+      // (docs/FASTDDS_NOTES.md, "A starved process's port"). A participant lease is how
+      // long the network waits for a silent process anyway.
+      shm->healthy_check_timeout_ms(static_cast<std::uint32_t>(
+          std::max(1000.0, 1000.0 * network.participant_lease_s)));
+      qos.transport().user_transports.push_back(shm);
       if (qos.wire_protocol().participant_id < 0) {
         qos.wire_protocol().participant_id = FreshShmParticipantId(network.domain_id);
       }

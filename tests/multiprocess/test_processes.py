@@ -5,9 +5,11 @@ In lock-step, faults land on their exact step, so a run with faults is reproduci
 bit, and every test compares the processes with the in-process simulation (deif_sim) of
 the same config: the same protocol over a simulated network.
 """
+import glob
 import math
 import os
 import re
+import signal
 import subprocess
 import time
 
@@ -397,6 +399,52 @@ def test_shm_restarts(work, domain):
         xs = {(by_step[j][k]["x_est"], by_step[j][k]["y_est"]) for j in range(1, 5)}
         assert len(xs) == 1, f"agents disagree at step {k}: {xs}"
     assert shm_snapshot() - before == set(), "shared-memory files left behind"
+
+
+def test_starved_shm_port(work, domain, monkeypatch):
+    """Shared memory: agent 3 frozen (SIGSTOP) for 3 s, longer than Fast DDS's default port
+    health check (1 s), as a process starved of CPU on a busy host can be. Its peers must not
+    take its port for a dead process's and remove it (Fast DDS logs "NOT Healthy" when it
+    does; docs/FASTDDS_NOTES.md, "A starved process's port"); once resumed it writes rows
+    again and agrees with the others."""
+    monkeypatch.setenv("DEIF_DDS_LOG", "warning")  # the processes print Fast DDS's warnings
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=100000,
+                            domain=domain, overrides=["network.transport=shm"], progress=False)
+    try:
+        lau.start()
+        lau.wait_for_step(100)
+        agent = lau.procs["agent_3"].popen
+        agent.send_signal(signal.SIGSTOP)
+        frozen = time.time()
+        while time.time() - frozen < 3.0:
+            lau.service()
+            time.sleep(0.02)
+        agent.send_signal(signal.SIGCONT)
+        resumed_at = lau.current_step()
+        lau.wait_for_step(resumed_at + 200)
+    finally:
+        lau.terminate_all()
+        res = lau.finish()
+    logs = glob.glob(os.path.join(res.out_dir, "logs", "*.log"))
+    assert len(logs) == 5
+    # Fast DDS stamps its warnings with the local time. A port left by an earlier run that
+    # died on this domain is found unhealthy at the start, rightly: only the freeze counts.
+    stamp = re.compile(r"(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+).*NOT Healthy")
+    unhealthy = []
+    for path in logs:
+        with open(path, errors="replace") as f:
+            for line in f:
+                m = stamp.search(line)
+                if m and time.mktime(time.strptime(m.group(1)[:19], "%Y-%m-%d %H:%M:%S")) >= int(frozen):
+                    unhealthy.append(f"{os.path.basename(path)}: {line.strip()[:160]}")
+    assert unhealthy == [], f"a live process's shared-memory port was removed: {unhealthy}"
+    back = [r for r in rows(res.out_dir, 3) if int(r["step"]) > resumed_at + 20]
+    assert len(back) > 100
+    by_step = {j: {r["step"]: r for r in rows(res.out_dir, j)} for j in range(1, 5)}
+    common = sorted(set.intersection(*(set(v) for v in by_step.values())), key=int)
+    for k in common[-51:-1]:  # the run was stopped mid-step: the last one may be partial
+        xs = {(by_step[j][k]["x_est"], by_step[j][k]["y_est"]) for j in range(1, 5)}
+        assert len(xs) == 1, f"agents disagree at step {k}: {xs}"
 
 
 def server_processes(port):
