@@ -115,10 +115,10 @@ int AgentNode::Run() {
   // peer that died meanwhile never acknowledges).
   const bool acknowledged = node_.WaitForAcknowledgments(0.5);
   const auto& c = protocol_.counters();
-  context_.log->info("rejected {}, dropped {}, late {}, deadline misses {}, adoptions {}, merges {}; "
-                     "last samples {}acknowledged",
+  context_.log->info("rejected {}, dropped {}, late {}, deadline misses {}, adoptions {}, merges {}, "
+                     "liveliness lapses forgiven {}; last samples {}acknowledged",
                      c.rejected, c.dropped, c.late, c.deadline_misses, c.adoptions, c.merges,
-                     acknowledged ? "" : "not all ");
+                     protocol_.lapses_forgiven(), acknowledged ? "" : "not all ");
   for (const auto& [reason, count] : c.by_reason) context_.log->info("  {}: {}", reason, count);
   WriteCounters();
   return exit_code_.value_or(protocol::kExitOk);
@@ -138,6 +138,7 @@ void AgentNode::WriteCounters() const {
   const nlohmann::json counters = {{"rejected", c.rejected},   {"dropped", c.dropped},
                                    {"late", c.late},           {"deadline_misses", c.deadline_misses},
                                    {"adoptions", c.adoptions}, {"merges", c.merges},
+                                   {"lapses_forgiven", protocol_.lapses_forgiven()},
                                    {"by_reason", c.by_reason}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) /
                  ("agent_" + std::to_string(id_) + ".counters.json")).string())

@@ -124,15 +124,18 @@ int TargetNode::Run() {
     Execute(protocol_.TakeActions());
   }
   const double elapsed_s = std::chrono::duration<double>(dds::Clock::now() - started).count();
-  context_.log->info("{} at step {} after {:.3f} s", stop_requested_ ? "stopped" : "done",
-                     protocol_.current_step(), elapsed_s);
+  context_.log->info("{} at step {} after {:.3f} s; liveliness lapses forgiven {}",
+                     stop_requested_ ? "stopped" : "done", protocol_.current_step(), elapsed_s,
+                     protocol_.lapses_forgiven());
   for (const auto& [reason, count] : protocol_.rejected_by_reason()) {
     context_.log->info("  {}: {}", reason, count);
   }
   if (!context_.options.out_dir.empty()) {
     std::int64_t rejected = 0;
     for (const auto& [reason, count] : protocol_.rejected_by_reason()) rejected += count;
-    const nlohmann::json counters = {{"rejected", rejected}, {"by_reason", protocol_.rejected_by_reason()}};
+    const nlohmann::json counters = {{"rejected", rejected},
+                                     {"lapses_forgiven", protocol_.lapses_forgiven()},
+                                     {"by_reason", protocol_.rejected_by_reason()}};
     std::ofstream((std::filesystem::path(context_.options.out_dir) / "target.counters.json").string())
         << counters.dump(2) << "\n";
   }

@@ -127,6 +127,8 @@ class AgentProtocol {
   AgentId id() const { return id_; }
   StepIndex last_written_step() const { return written_; }
   const AgentCounters& counters() const { return counters_; }
+  // Liveliness lapses that ended within network.liveliness_grace_s: a peer slow, not gone.
+  long lapses_forgiven() const { return lapses_.ignored(); }
   const Vector2& position() const { return position_m_; }
   // The posterior of step k while k is within the history.
   std::optional<InfoState> PosteriorOf(StepIndex k) const;

@@ -81,6 +81,8 @@ class TargetProtocol {
 
   bool finished() const { return phase_ == Phase::kDone; }
   bool started() const { return phase_ != Phase::kWaitingForAgents; }
+  // Liveliness lapses that ended within network.liveliness_grace_s: an agent slow, not gone.
+  long lapses_forgiven() const { return lapses_.ignored(); }
   StepIndex current_step() const { return step_; }
   std::set<AgentId> AliveAgents() const;  // alive with a known state
   const std::map<std::string, std::int64_t>& rejected_by_reason() const { return rejected_; }

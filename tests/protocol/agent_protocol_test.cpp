@@ -393,6 +393,8 @@ TEST_CASE("A liveliness lapse shorter than network.liveliness_grace_s excludes n
   CHECK(net.rows.at(1)[2].fused == 3);
   CHECK(net.rows.at(1)[2].alive == 3);
   CHECK(net.agents.at(1)->Members().size() == 3);
+  CHECK(net.agents.at(1)->lapses_forgiven() == 1);  // counted for the run's summary
+  CHECK(net.agents.at(2)->lapses_forgiven() == 0);
   for (StepIndex k = 1; k <= 5; ++k) CHECK(AllAgreeAt(net, k));
   const auto& log = net.logs.at(1);
   CHECK(std::none_of(log.begin(), log.end(),
