@@ -434,13 +434,11 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
                          "lo_packets_per_step": (m1["lo_packets"] - m0["lo_packets"]) / dk}
     # Whole run from getrusage(RUSAGE_CHILDREN): startup, discovery and the observer included.
     fig["cpu_s_per_step_whole_run_incl_observer"] = total_cpu / max(1, metrics.get("last_step") or 1)
-    agents_kb = [v for k, v in monitor.hwm_kb.items() if k.startswith("agent_")]
-    fig["rss_mb"] = {"agent_median": mb(median(agents_kb)), "agent_max": mb(max(agents_kb) if agents_kb else None),
-                     "target": mb(monitor.hwm_kb.get("target")), "agents_sampled": len(agents_kb)}
-    for key, peaks in (("pss_mb", monitor.pss_kb), ("private_mb", monitor.private_kb)):
+    for key, peaks in (("rss_mb", monitor.hwm_kb), ("pss_mb", monitor.pss_kb),
+                       ("private_mb", monitor.private_kb)):
         kb = [v for k, v in peaks.items() if k.startswith("agent_")]
         fig[key] = {"agent_median": mb(median(kb)), "agent_max": mb(max(kb) if kb else None),
-                    "agents_sampled": len(kb)}
+                    "target": mb(peaks.get("target")), "agents_sampled": len(kb)}
     fig["out_dir"] = out_dir
     return fig
 

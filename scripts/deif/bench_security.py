@@ -66,18 +66,9 @@ def _certs_for(n, work_dir, level="secure"):
     """A folder with the files of the target, agent-1..N and the step observer, under the
     governance of `level` ("secure" or one of LEVELS)."""
     folder = os.path.join(work_dir, f"security-certs-n{n}-{level}")
-    if level == "no-crypto":
-        plain_payloads = certs.governance_xml("NONE").replace(
-            "<data_protection_kind>ENCRYPT</data_protection_kind>",
-            "<data_protection_kind>NONE</data_protection_kind>")
-        original, certs.governance_xml = certs.governance_xml, lambda _: plain_payloads
-        try:
-            certs.ensure(folder, n, observers=1)
-        finally:
-            certs.governance_xml = original
-    else:
-        certs.ensure(folder, n, observers=1,
-                     submessages="NONE" if level == "submessages-none" else "SIGN")
+    certs.ensure(folder, n, observers=1,
+                 submessages="SIGN" if level == "secure" else "NONE",
+                 payloads="NONE" if level == "no-crypto" else "ENCRYPT")
     for suffix in (".cert.pem", ".key.pem", ".permissions.p7s"):
         shutil.copy(os.path.join(folder, "observer-1" + suffix),
                     os.path.join(folder, "bench-observer" + suffix))

@@ -120,13 +120,17 @@ def iso(t):
 SUBMESSAGE_PROTECTION = ("SIGN", "ENCRYPT", "NONE")  # metadata_protection_kind
 
 
-def governance_xml(submessages="SIGN"):
+def governance_xml(submessages="SIGN", payloads="ENCRYPT"):
     """Discovery, liveliness and data protected; nobody unauthenticated; payloads encrypted;
     every submessage of the user topics (data, heartbeat, acknowledgement, gap) signed,
-    encrypted or left as it is (`submessages`; docs/SECURITY.md, "Submessage protection")."""
+    encrypted or left as it is (`submessages`; docs/SECURITY.md, "Submessage protection").
+    payloads="NONE" leaves the payloads readable: for measuring what the encryption costs
+    (the security benchmark, docs/BENCHMARKS.md), never offered on the command line."""
     if submessages not in SUBMESSAGE_PROTECTION:
         raise CertsError(f"--submessages {submessages.lower()}: must be one of "
                          + ", ".join(k.lower() for k in SUBMESSAGE_PROTECTION))
+    if payloads not in ("ENCRYPT", "NONE"):
+        raise CertsError(f"payloads {payloads}: must be ENCRYPT or NONE")
     return """<?xml version="1.0" encoding="UTF-8"?>
 <!-- deif-network governance (docs/SECURITY.md), made by scripts/deif-certs -->
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance"
@@ -149,13 +153,13 @@ def governance_xml(submessages="SIGN"):
           <enable_read_access_control>true</enable_read_access_control>
           <enable_write_access_control>true</enable_write_access_control>
           <metadata_protection_kind>%s</metadata_protection_kind>
-          <data_protection_kind>ENCRYPT</data_protection_kind>
+          <data_protection_kind>%s</data_protection_kind>
         </topic_rule>
       </topic_access_rules>
     </domain_rule>
   </domain_access_rules>
 </dds>
-""" % submessages
+""" % (submessages, payloads)
 
 
 def criteria(kind, topics, partitions):
@@ -308,12 +312,13 @@ class Issuer:
         self.note(f"{base}.p7s", why)
 
 
-def ensure(folder, agents, observers=1, days=365, run=None, log=None, submessages="SIGN"):
+def ensure(folder, agents, observers=1, days=365, run=None, log=None, submessages="SIGN",
+           payloads="ENCRYPT"):
     """Makes `folder` hold a CA and every file of target, agent-1..agent-N and
-    observer-1..M (see the module's docstring), with the governance of `submessages`.
-    Returns {"issued": [...], "kept": [...]}. Raises CertsError (one line)."""
+    observer-1..M (see the module's docstring), with the governance of `submessages` and
+    `payloads`. Returns {"issued": [...], "kept": [...]}. Raises CertsError (one line)."""
     log = log or (lambda msg: None)
-    governance = governance_xml(submessages)
+    governance = governance_xml(submessages, payloads)
     if not 1 <= agents <= MAX_AGENTS:
         raise CertsError(f"--agents {agents}: must be in 1..{MAX_AGENTS}")
     if not 0 <= observers <= 64:
