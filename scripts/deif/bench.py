@@ -568,13 +568,16 @@ def run_wire_inner(ns, steps, work_dir):
     subprocess.run(["mount", "--make-rprivate", "/"], check=True)
     subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", "/dev/shm"], check=True)
     out = []
-    # Plain at every N; DDS Security (docs/SECURITY.md) too at N <= 8, next to it.
-    for n, secure in [(n, False) for n in ns] + [(n, True) for n in ns if n <= 8]:
-        fig = lockstep_run(n, steps, 210 + len(out), work_dir, timeout_s=90.0 if secure else 40.0,
-                           secure=secure)
+    # Plain and DDS Security (docs/SECURITY.md) at every N, the secure runs after the plain
+    # ones. A secure step at N = 16 takes about 5 times a plain one (docs/BENCHMARKS.md).
+    for n, secure in [(n, False) for n in ns] + [(n, True) for n in ns]:
+        timeout_s = 90.0 + n * n * steps / 2000.0 if secure else 40.0
+        fig = lockstep_run(n, steps, 210 + len(out), work_dir, timeout_s=timeout_s, secure=secure)
         st = fig.get("steady") or {}
-        out.append({"n": n, "secure": secure, "ok": fig["ok"], "last_step": fig["last_step"],
-                    "steps_per_s_udp": st.get("steps_per_s"), "wall_time_s": fig["wall_time_s"],
+        if "error" in fig:
+            log(f"  wire n={n}{' secure' if secure else ''}: {fig['error']}")
+        out.append({"n": n, "secure": secure, "ok": fig["ok"], "last_step": fig.get("last_step"),
+                    "steps_per_s_udp": st.get("steps_per_s"), "wall_time_s": fig.get("wall_time_s"),
                     "bytes_per_step": st.get("lo_bytes_per_step"),
                     "packets_per_step": st.get("lo_packets_per_step"),
                     "bytes_per_agent_per_step": (st["lo_bytes_per_step"] / n) if st else None})

@@ -103,6 +103,7 @@ class Proc:
     stopped: bool = False
     exit_status: int = None
     restarts: int = 0
+    started_unix_s: float = None  # when it was (last) started
 
 
 @dataclass
@@ -231,6 +232,16 @@ class Launcher:
             self.discovery_server = (host_ip, 11811 + self.domain)
             sets.append(f"network.discovery_server={host_ip}:{11811 + self.domain}")
             resolved = cfg.resolve(config_path, sets)
+        # A secure run starts its processes one after another (start()); each takes a second
+        # or more to authenticate with those before it (about 27 s for 16 agents on 2 cores).
+        # The target's wait for the agents, and theirs for the first range, must cover that.
+        self.start_timeout_raised = None
+        if resolved["network"]["security"]["enabled"]:
+            least = 3.0 * self.n
+            if float(resolved["network"]["start_timeout_s"]) < least:
+                self.start_timeout_raised = least
+                sets.append(f"network.start_timeout_s={least:g}")
+                resolved = cfg.resolve(config_path, sets)
         self.cfg = resolved
         self.faults = sorted(file_faults + extra, key=lambda f: f.step)
         self.realtime = resolved["scenario"]["mode"] == "realtime"
@@ -323,6 +334,7 @@ class Launcher:
         if self.hosts is not None:
             argv = self.hosts.command(proc.host, argv)
         logf = open(proc.log_path, "ab")
+        proc.started_unix_s = time.time()
         proc.popen = subprocess.Popen(
             argv, stdout=subprocess.PIPE if control else logf, stderr=logf,
             stdin=subprocess.PIPE if control else subprocess.DEVNULL)
@@ -375,16 +387,46 @@ class Launcher:
             time.sleep(0.5)
         if self.live_port is not None:
             self._start_observer()
+        # Secure processes start one after another, the target first: Fast DDS 2.9.1 can stall
+        # the handshake of a participant that discovers two new ones at once. Started all
+        # together, 16 secure agents stalled in cascade and the run began with 3 or 4 of them;
+        # a target started last, finding everyone at once, stalled again and again
+        # (docs/SECURITY.md, "Start-up").
+        stagger = bool(self.cfg["network"]["security"]["enabled"])
+        t = Proc("target", self._argv("deif_target", "--hold-for-faults"), self._host_of("target"),
+                 log_path=os.path.join(self.out_dir, "logs", "target.log"))
+        if stagger:
+            self._say("secure: starting the target, then the agents one after another "
+                      "(docs/SECURITY.md, \"Start-up\")"
+                      + (f"; network.start_timeout_s raised to {self.start_timeout_raised:g} s"
+                         if self.start_timeout_raised else ""))
+            self._spawn(t, control=True)
+            self.procs["target"] = t
+            self._await_up(t)
         for j in range(1, self.n + 1):
             name = f"agent_{j}"
             p = Proc(name, self._argv("deif_agent", "--id", str(j)), self._host_of(name),
                      log_path=os.path.join(self.out_dir, "logs", f"agent-{j}.log"))
             self._spawn(p)
             self.procs[name] = p
-        t = Proc("target", self._argv("deif_target", "--hold-for-faults"), self._host_of("target"),
-                 log_path=os.path.join(self.out_dir, "logs", "target.log"))
-        self._spawn(t, control=True)
-        self.procs["target"] = t
+            if stagger:
+                self._await_up(p)
+        if not stagger:
+            self._spawn(t, control=True)
+            self.procs["target"] = t
+
+    def _await_up(self, p, timeout_s=30.0):
+        """Until p's log says it is up (its participant made and, when secure, authenticated
+        with every peer it found), it ended, or timeout_s (then the next one starts anyway)."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and p.popen.poll() is None:
+            try:
+                with open(p.log_path, "rb") as f:
+                    if b" up: run " in f.read():
+                        return
+            except OSError:
+                pass
+            time.sleep(0.05)
 
     def current_step(self):
         row = artefacts.last_row(os.path.join(self.out_dir, "target.csv"))
@@ -586,6 +628,7 @@ class Launcher:
             procs.append({"name": name, "argv": p.argv, "host": p.host, "exit_status": status,
                           "signal": -status if status is not None and status < 0 else None,
                           "expected": expected, "restarts": p.restarts,
+                          "started_unix_s": p.started_unix_s,
                           "log": os.path.relpath(p.log_path, self.out_dir)})
         metrics = self.evaluate()
         if metrics.get("non_finite_estimates"):
