@@ -116,3 +116,20 @@ def test_a_used_run_folder_is_refused(deif_sim, work_dir):
 def test_default_run_folder_is_under_runs():
     path = launcher.default_out_dir(DEFAULT)
     assert path.startswith(os.path.join(ROOT, "runs", "default-"))
+
+
+@pytest.mark.parametrize("agents,configured,expected", [(16, None, 48.0), (4, None, 30.0), (16, 100.0, 100.0)])
+def test_secure_start_timeout_covers_the_staggered_start(deif_sim, work_dir, agents, configured, expected):
+    """A secure run starts its processes one after another (docs/SECURITY.md, "Start-up"):
+    the start timeout is raised to 3 s per agent when it is shorter, never lowered, and the
+    raise is written to the config every process reads."""
+    out = os.path.join(work_dir, "run")
+    sets = ["network.security.enabled=true", "network.security.dir=" + os.path.join(work_dir, "certs")]
+    if configured is not None:
+        sets.append(f"network.start_timeout_s={configured:g}")
+    la = launcher.Launcher(DEFAULT, out, agents=agents, overrides=sets)
+    written = config.resolve(os.path.join(out, "config.yaml"))
+    assert written["network"]["start_timeout_s"] == expected
+    assert la.cfg["network"]["start_timeout_s"] == expected
+    plain = launcher.Launcher(DEFAULT, os.path.join(work_dir, "plain"), agents=agents)
+    assert plain.cfg["network"]["start_timeout_s"] == 30.0
