@@ -362,6 +362,7 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
     run_name = f"bench-n{n}-d{domain}-{random.randrange(16 ** 6):06x}"
     out_dir = os.path.join(work_dir, run_name)
     observer = None
+    shm_before = launcher.shm_snapshot()  # the observer's files are not the launcher's to remove
     if observer_exe:
         observer = _start_observer(observer_exe, config_path, n, steps, domain, run_name, work_dir,
                                    overrides)
@@ -388,6 +389,8 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
         timed_out = bool(timeout_s) and (metrics.get("last_step") or 0) < steps and \
             (summary.get("wall_time_s") or 0) >= 0.95 * timeout_s
         obs = _stop_observer(observer, timed_out or result is None) if observer else None
+        if observer:
+            launcher.shm_cleanup(shm_before)
     usage_after = resource.getrusage(resource.RUSAGE_CHILDREN)
     total_cpu = (usage_after.ru_utime + usage_after.ru_stime
                  - usage_before.ru_utime - usage_before.ru_stime)
