@@ -21,6 +21,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 sys.path.insert(0, os.path.join(ROOT, "scripts"))
 sys.path.insert(0, os.path.join(ROOT, "tests", "support"))
 from deif import artefacts  # noqa: E402  (the project's reader of run artefacts)
+from deif import launcher as deif_launcher  # noqa: E402  (its shared-memory clean-up)
 from process_fixtures import domain, work  # noqa: E402,F401
 PYTHON = "/usr/bin/python3"
 DEIF_RUN = os.path.join(ROOT, "scripts", "deif-run")
@@ -123,17 +124,23 @@ def test_sigterm_stops_every_process_and_writes_an_interrupted_summary(domain, w
 
 def test_sigkill_of_the_launcher_leaves_no_orphan(domain, work, reaper):
     out = os.path.join(work, "run")
-    launcher = start_long_run(domain, out, reaper)
-    assert len(live_processes(out)) == AGENTS + 1
+    shm_before = deif_launcher.shm_snapshot()
+    try:
+        launcher = start_long_run(domain, out, reaper)
+        assert len(live_processes(out)) == AGENTS + 1
 
-    launcher.send_signal(signal.SIGKILL)
-    launcher.communicate(timeout=60)
+        launcher.send_signal(signal.SIGKILL)
+        launcher.communicate(timeout=60)
 
-    assert launcher.returncode == -signal.SIGKILL
-    # PR_SET_PDEATHSIG (setpriv --pdeathsig KILL in scripts/deif/launcher.py) kills each
-    # child as soon as the launcher is gone; allow the kernel a moment to deliver it.
-    wait_until(lambda: live_processes(out) == {}, 30, "the launcher's children to die")
-    assert not os.path.exists(os.path.join(out, "summary.json"))  # nobody was left to write it
+        assert launcher.returncode == -signal.SIGKILL
+        # PR_SET_PDEATHSIG (setpriv --pdeathsig KILL in scripts/deif/launcher.py) kills each
+        # child as soon as the launcher is gone; allow the kernel a moment to deliver it.
+        wait_until(lambda: live_processes(out) == {}, 30, "the launcher's children to die")
+        assert not os.path.exists(os.path.join(out, "summary.json"))  # nobody was left to write it
+    finally:
+        # A launcher killed with -9 cannot remove its processes' shared-memory files: the
+        # test does, once nothing maps them.
+        deif_launcher.shm_cleanup(shm_before)
 
 
 def test_domain_out_of_range_starts_nothing(work):
