@@ -362,8 +362,8 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
     run_name = f"bench-n{n}-d{domain}-{random.randrange(16 ** 6):06x}"
     out_dir = os.path.join(work_dir, run_name)
     observer = None
-    shm_before = launcher.shm_snapshot()  # the observer's files are not the launcher's to remove
     if observer_exe:
+        shm_before = launcher.shm_snapshot()  # the observer's files are not the launcher's to remove
         observer = _start_observer(observer_exe, config_path, n, steps, domain, run_name, work_dir,
                                    overrides)
     usage_before = resource.getrusage(resource.RUSAGE_CHILDREN)

@@ -236,7 +236,8 @@ class Launcher:
         # or more to authenticate with those before it (about 27 s for 16 agents on 2 cores).
         # The target's wait for the agents, and theirs for the first range, must cover that.
         self.start_timeout_raised = None
-        if resolved["network"]["security"]["enabled"]:
+        self.staggered = bool(resolved["network"]["security"]["enabled"])
+        if self.staggered:
             least = 3.0 * self.n
             if float(resolved["network"]["start_timeout_s"]) < least:
                 self.start_timeout_raised = least
@@ -392,10 +393,9 @@ class Launcher:
         # together, 16 secure agents stalled in cascade and the run began with 3 or 4 of them;
         # a target started last, finding everyone at once, stalled again and again
         # (docs/SECURITY.md, "Start-up").
-        stagger = bool(self.cfg["network"]["security"]["enabled"])
         t = Proc("target", self._argv("deif_target", "--hold-for-faults"), self._host_of("target"),
                  log_path=os.path.join(self.out_dir, "logs", "target.log"))
-        if stagger:
+        if self.staggered:
             self._say("secure: starting the target, then the agents one after another "
                       "(docs/SECURITY.md, \"Start-up\")"
                       + (f"; network.start_timeout_s raised to {self.start_timeout_raised:g} s"
@@ -409,9 +409,9 @@ class Launcher:
                      log_path=os.path.join(self.out_dir, "logs", f"agent-{j}.log"))
             self._spawn(p)
             self.procs[name] = p
-            if stagger:
+            if self.staggered:
                 self._await_up(p)
-        if not stagger:
+        if not self.staggered:
             self._spawn(t, control=True)
             self.procs["target"] = t
 
