@@ -495,6 +495,13 @@ bool AwaitAuthentication(const SecureListener& listener, const Config& config) {
   return true;
 }
 
+// A random wait within RestartWindowS (dds/node.hpp).
+Clock::duration RestartBackoff(int restart, int agents) {
+  static std::mt19937_64 rng{std::random_device{}()};
+  std::uniform_real_distribution<double> wait_s(0.0, RestartWindowS(restart, agents));
+  return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait_s(rng)));
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -554,6 +561,8 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
       factory->delete_participant(d.participant);
       d.secure_listener.ResetPeers();
       ++d.authentication_restarts;
+      // Not at once: participants re-created together would stall each other again.
+      std::this_thread::sleep_for(RestartBackoff(d.authentication_restarts, config.agents.count));
       d.participant = factory->create_participant(config.network.domain_id, qos, &d.secure_listener,
                                                   fdds::StatusMask::none());
     }
@@ -845,6 +854,10 @@ int Node::MatchedReaders(Topic topic) const {
   fdds::PublicationMatchedStatus status;
   it->second->get_publication_matched_status(status);
   return status.current_count;
+}
+
+double RestartWindowS(int restart, int agents) {
+  return std::min(20.0, 0.2 * (std::max(agents, 1) + 1) * std::max(restart, 1));
 }
 
 std::uint64_t RandomInstanceToken() {

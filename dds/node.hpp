@@ -141,6 +141,14 @@ inline Clock::time_point FromSeconds(double s) {
   return Clock::time_point(std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s)));
 }
 
+// How long a secure participant whose handshake stalled at start may wait, at random, before
+// it is created anew for the `restart`-th time, in a network of `agents` agents: 0.2 s per
+// process and restart, at most 20 s. Participants re-created at the same moment are, for
+// every other participant, new ones found at once, which is what stalls a handshake in Fast
+// DDS 2.9.1: 16 secure agents started together began with every agent in 10 runs of 13 with
+// the random wait, in none of 3 without it (docs/SECURITY.md, "Start-up").
+double RestartWindowS(int restart, int agents);
+
 // A random 64-bit token, different at every process start (never 0).
 std::uint64_t RandomInstanceToken();
 

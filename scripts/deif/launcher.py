@@ -165,7 +165,9 @@ class Launcher:
     def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
                  overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
                  progress=True, log=sys.stderr, timeout_s=None, discovery_server=False,
-                 secure=False, certs_dir=None):
+                 secure=False, certs_dir=None, staggered=None):
+        """staggered: start the processes one after another (True) or all at once (False);
+        None: one after another when the run is secure (start())."""
         self.log = log
         self.progress = progress and hasattr(log, "isatty") and log.isatty()
         if hosts < 1:
@@ -234,10 +236,12 @@ class Launcher:
             resolved = cfg.resolve(config_path, sets)
         # A secure run starts its processes one after another (start()); each takes a second
         # or more to authenticate with those before it (about 27 s for 16 agents on 2 cores).
-        # The target's wait for the agents, and theirs for the first range, must cover that.
+        # The target's wait for the agents, and theirs for the first range, must cover that,
+        # and about as much when they start together (a stalled handshake costs a restart).
         self.start_timeout_raised = None
-        self.staggered = bool(resolved["network"]["security"]["enabled"])
-        if self.staggered:
+        secure_run = bool(resolved["network"]["security"]["enabled"])
+        self.staggered = secure_run if staggered is None else bool(staggered)
+        if secure_run:
             least = 3.0 * self.n
             if float(resolved["network"]["start_timeout_s"]) < least:
                 self.start_timeout_raised = least
@@ -390,16 +394,17 @@ class Launcher:
             self._start_observer()
         # Secure processes start one after another, the target first: Fast DDS 2.9.1 can stall
         # the handshake of a participant that discovers two new ones at once. Started all
-        # together, 16 secure agents stalled in cascade and the run began with 3 or 4 of them;
-        # a target started last, finding everyone at once, stalled again and again
+        # together, 16 secure agents now begin (a stalled participant waits a random time
+        # before it is re-created), 32 still stall in cascade and begin with a few of them; a
+        # target started last, finding everyone at once, stalled again and again
         # (docs/SECURITY.md, "Start-up").
         t = Proc("target", self._argv("deif_target", "--hold-for-faults"), self._host_of("target"),
                  log_path=os.path.join(self.out_dir, "logs", "target.log"))
+        raised = (f"network.start_timeout_s raised to {self.start_timeout_raised:g} s"
+                  if self.start_timeout_raised else "")
         if self.staggered:
             self._say("secure: starting the target, then the agents one after another "
-                      "(docs/SECURITY.md, \"Start-up\")"
-                      + (f"; network.start_timeout_s raised to {self.start_timeout_raised:g} s"
-                         if self.start_timeout_raised else ""))
+                      "(docs/SECURITY.md, \"Start-up\")" + (f"; {raised}" if raised else ""))
             self._spawn(t, control=True)
             self.procs["target"] = t
             self._await_up(t)
@@ -412,6 +417,8 @@ class Launcher:
             if self.staggered:
                 self._await_up(p)
         if not self.staggered:
+            if raised:
+                self._say(f"secure, every process at once: {raised} (docs/SECURITY.md, \"Start-up\")")
             self._spawn(t, control=True)
             self.procs["target"] = t
 

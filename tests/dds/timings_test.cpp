@@ -63,3 +63,15 @@ TEST_CASE("at every N the assertions stay within the budget and at least two per
     CHECK(t.assertions_per_lease * pairs / t.liveliness_lease_s <= 4000.0 * (1 + 1e-9));
   }
 }
+
+TEST_CASE("a stalled secure participant waits longer in a larger network and at each restart",
+          "[dds][security]") {
+  // 0.2 s per process (agents and the target) and restart: 16 agents spread their first
+  // restarts over 3.4 s, their second over 6.8 s.
+  CHECK(deif::dds::RestartWindowS(1, 16) == Approx(3.4));
+  CHECK(deif::dds::RestartWindowS(2, 16) == Approx(6.8));
+  CHECK(deif::dds::RestartWindowS(1, 4) == Approx(1.0));
+  CHECK(deif::dds::RestartWindowS(1, 64) == Approx(13.0));
+  CHECK(deif::dds::RestartWindowS(5, 64) == Approx(20.0));  // capped
+  CHECK(deif::dds::RestartWindowS(0, 0) == Approx(0.4));    // never a zero window
+}

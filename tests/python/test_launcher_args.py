@@ -133,3 +133,16 @@ def test_secure_start_timeout_covers_the_staggered_start(deif_sim, work_dir, age
     assert la.cfg["network"]["start_timeout_s"] == expected
     plain = launcher.Launcher(DEFAULT, os.path.join(work_dir, "plain"), agents=agents)
     assert plain.cfg["network"]["start_timeout_s"] == 30.0
+    assert la.staggered and not plain.staggered
+
+
+def test_the_start_order_can_be_chosen(deif_sim, work_dir):
+    """Secure runs start one process after another unless told otherwise (deif-run --start);
+    the start timeout of a secure run is raised either way."""
+    sets = ["network.security.enabled=true", "network.security.dir=" + os.path.join(work_dir, "certs")]
+    together = launcher.Launcher(DEFAULT, os.path.join(work_dir, "a"), agents=16, overrides=sets,
+                                 staggered=False)
+    assert not together.staggered
+    assert together.cfg["network"]["start_timeout_s"] == 48.0
+    plain = launcher.Launcher(DEFAULT, os.path.join(work_dir, "b"), agents=4, staggered=True)
+    assert plain.staggered
