@@ -394,10 +394,10 @@ class Launcher:
             self._start_observer()
         # Secure processes start one after another, the target first: Fast DDS 2.9.1 can stall
         # the handshake of a participant that discovers two new ones at once. Started all
-        # together, 16 secure agents now begin (a stalled participant waits a random time
-        # before it is re-created), 32 still stall in cascade and begin with a few of them; a
-        # target started last, finding everyone at once, stalled again and again
-        # (docs/SECURITY.md, "Start-up").
+        # together (--start together), 16 secure agents began with all of them in 10 runs of
+        # 13 (a stalled participant waits a random time before it is re-created), 32 still
+        # stall in cascade; a target started last, finding everyone at once, stalled again
+        # and again (docs/SECURITY.md, "Start-up").
         t = Proc("target", self._argv("deif_target", "--hold-for-faults"), self._host_of("target"),
                  log_path=os.path.join(self.out_dir, "logs", "target.log"))
         raised = (f"network.start_timeout_s raised to {self.start_timeout_raised:g} s"
