@@ -80,6 +80,7 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
     }
     if (target_alive_) {
       Reject("a second target", "second_target");
+      HoldTargetRange(msg, from);
       return;
     }
     Log(LogLevel::kInfo, "a new target writer " + ToString(from) + " (the target restarted)");
@@ -215,8 +216,10 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
     LogOnce(alive ? LogLevel::kInfo : LogLevel::kWarn,
             std::string("target ") + (alive ? "alive" : "lost") + std::to_string(written_),
             alive ? "the target is alive" : "the target is lost (liveliness)");
+    if (!alive) AdoptHeldTarget(now_s);
     return;
   }
+  if (!alive) held_target_ranges_.erase(writer);  // a refused second target that left
   auto bound = writer_ids_.find(writer);
   if (bound == writer_ids_.end()) return;
   Peer& peer = peers_[bound->second];
@@ -234,6 +237,37 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
     Log(LogLevel::kWarn, "agent " + std::to_string(bound->second) + " lost (liveliness); members now " + members);
   }
   Advance(now_s);
+}
+
+void AgentProtocol::HoldTargetRange(const RangeMsg& msg, const SenderKey& from) {
+  constexpr std::size_t kMaxWriters = 4;  // bounds what a stray writer can make us keep
+  if (held_target_ranges_.count(from) == 0 && held_target_ranges_.size() >= kMaxWriters) return;
+  std::deque<RangeMsg>& held = held_target_ranges_[from];
+  held.push_back(msg);
+  while (held.size() > static_cast<std::size_t>(config_.network.history_steps)) held.pop_front();
+}
+
+void AgentProtocol::AdoptHeldTarget(double now_s) {
+  if (held_target_ranges_.empty()) return;
+  // The writer that measured the latest step is the restarted target.
+  auto latest = [](const std::deque<RangeMsg>& q) {
+    StepIndex k = 0;
+    for (const RangeMsg& m : q) k = std::max(k, m.step);
+    return k;
+  };
+  auto best = held_target_ranges_.begin();
+  for (auto it = held_target_ranges_.begin(); it != held_target_ranges_.end(); ++it) {
+    if (latest(it->second) > latest(best->second)) best = it;
+  }
+  const SenderKey writer = best->first;
+  std::deque<RangeMsg> ranges = std::move(best->second);
+  held_target_ranges_.clear();
+  Log(LogLevel::kInfo, "the target is lost and another writer's ranges were held: " +
+                           std::to_string(ranges.size()) + " of them are used now");
+  for (const RangeMsg& msg : ranges) {
+    if (finished_) return;
+    OnRange(msg, writer, now_s);
+  }
 }
 
 void AgentProtocol::OnPeersMatched(int matched, int range_writers, double now_s) {

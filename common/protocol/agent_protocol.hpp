@@ -20,6 +20,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <optional>
 #include <set>
@@ -138,6 +139,8 @@ class AgentProtocol {
  private:
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
   void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
+  void HoldTargetRange(const RangeMsg& msg, const SenderKey& from);
+  void AdoptHeldTarget(double now_s);
   // Acts on the held losses whose grace is over.
   void ConfirmLapses(double now_s);
   // A validated contribution held for its step.
@@ -245,6 +248,12 @@ class AgentProtocol {
   long unknown_ids_dropped_ = 0;  // by the transport, as last reported
   std::optional<SenderKey> target_writer_;
   bool target_alive_ = false;  // the bound target writer: alive until seen lost
+  // Ranges of another writer, refused while the bound target seemed alive: a process frozen
+  // while the target restarted hears the new target before it sees the old one lost, and
+  // the new one holds its next step until this process catches up (docs/PROTOCOL.md,
+  // "Rejoining", "A new target"). Used once the bound target is lost; at most
+  // history_steps per writer.
+  std::map<SenderKey, std::deque<RangeMsg>> held_target_ranges_;
   int matched_ = -1;
   double last_target_contact_s_ = 0.0;
   bool target_silent_logged_ = false;

@@ -153,7 +153,11 @@ std::vector<NetworkEvent> SimNetwork::PopDue(double now_s) {
         Schedule(item.time_s + period, item.event);
         continue;
       }
-      if (IsRunning(change->reader)) out.push_back(item.event);
+      if (IsRunning(change->reader)) {
+        out.push_back(item.event);
+      } else if (nodes_[static_cast<std::size_t>(change->reader)] == NodeState::kFrozen) {
+        missed_while_frozen_[change->reader].push_back(*change);
+      }
       continue;
     }
     auto& delivery = std::get<Delivery>(item.event);
@@ -245,6 +249,12 @@ void SimNetwork::Resume(NodeId node, double now_s) {
     if (pair.first == node) heard_s = now_s;
   }
   ReleaseHeld(now_s);
+  // But a process that was replaced meanwhile is gone for it too.
+  auto missed = missed_while_frozen_.find(node);
+  if (missed != missed_while_frozen_.end()) {
+    for (const LivelinessChange& change : missed->second) Schedule(now_s, change);
+    missed_while_frozen_.erase(missed);
+  }
 }
 
 void SimNetwork::Restart(NodeId node, double now_s) {

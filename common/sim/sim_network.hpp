@@ -123,6 +123,10 @@ class SimNetwork {
   std::map<std::pair<NodeId, NodeId>, Channel> channels_;  // (from, to)
   std::map<std::pair<NodeId, NodeId>, double> last_heard_s_;  // (reader, writer)
   std::map<std::pair<NodeId, NodeId>, bool> believed_alive_;  // (reader, writer)
+  // Liveliness changes that came while their reader was frozen: a restarted process's old
+  // incarnation is lost for it too, and it learns so once resumed (a real process's
+  // middleware finds the lease expired; docs/PROTOCOL.md, "Rejoining").
+  std::map<NodeId, std::vector<LivelinessChange>> missed_while_frozen_;
   std::map<NodeId, std::map<int, Message>> latest_state_;      // for a restarted target
   std::priority_queue<Queued, std::vector<Queued>, std::greater<Queued>> queue_;
   DropFilter drop_filter_;

@@ -156,23 +156,54 @@ def test_target_restart(work, domain):
     assert worst == 0.0
 
 
+def test_frozen_through_target_restart(work, domain):
+    """Agent 2 frozen at step 30, the target restarted before step 45, agent 2 resumed at 60.
+    Agent 2 wakes up believing the old target alive and hears the new one first: it must take
+    the new target's ranges once it sees the old one lost, not refuse them for good (it did:
+    the new target then held step 60 for agent 2 and the others gave up on a silent target,
+    exit 1). Every process ends 0, every agent writes every step from its return on, agent 2
+    agrees with the others again, and the others equal the simulation."""
+    faults = [launcher.Fault(30, "stop", 2), launcher.Fault(45, "restart_target"),
+              launcher.Fault(60, "cont", 2)]
+    res = launch(work, domain, agents=4, steps=150, faults=faults)
+    assert res.ok, res.summary["processes"]
+    assert [f["applied_at_step"] for f in res.summary["faults"]] == [30, 45, 60]
+    with open(os.path.join(res.out_dir, "logs", "agent-2.log")) as f:
+        log = f.read()
+    assert "ranges were held" in log and "(the target restarted)" in log
+    for j in (1, 3, 4):
+        assert steps_of(res.out_dir, j) == list(range(1, 151))
+    assert steps_of(res.out_dir, 2)[-1] == 150
+    last = {j: rows(res.out_dir, j)[-1] for j in range(1, 5)}
+    assert all(last[j]["fused"] == "4" for j in range(1, 5))
+    assert all((last[j]["x_est"], last[j]["y_est"]) == (last[1]["x_est"], last[1]["y_est"])
+               for j in range(1, 5))
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), (1, 3, 4))
+    assert worst == 0.0
+
+
 def test_frozen_agent(work, domain):
-    """Agent 2 frozen (SIGSTOP) at step 80 and resumed at 140: the others fuse three meanwhile,
+    """Agent 2 frozen (SIGSTOP) at step 80 and resumed at 125: the others fuse three meanwhile,
     equal to the simulation; once back, agent 2 agrees with them bit for bit and the ring of
-    four re-forms."""
-    faults = [launcher.Fault(80, "stop", 2), launcher.Fault(140, "cont", 2)]
+    four re-forms. The freeze is shorter than the history (50 steps), so every sample it
+    missed is still in its writer's history. A longer one (80 to 140, as this test once had)
+    relies on what the frozen process's shared-memory port kept (512 messages, heartbeats
+    included): in about 1 run of 12 a contribution of step 86 was gone, agent 2 merged at
+    its return (docs/PROTOCOL.md, "Rejoining"), and the others ended 1 ulp away from the
+    simulation."""
+    faults = [launcher.Fault(80, "stop", 2), launcher.Fault(125, "cont", 2)]
     res = launch(work, domain, agents=4, steps=300, faults=faults)
     assert res.ok, res.summary["processes"]
-    assert [f["applied_at_step"] for f in res.summary["faults"]] == [80, 140]
+    assert [f["applied_at_step"] for f in res.summary["faults"]] == [80, 125]
     sim = oracle(res.out_dir, work)
     worst, _ = largest_difference(res.out_dir, sim, (1, 3, 4))
     assert worst == 0.0
     for j in (1, 3, 4):
-        assert all(r["fused"] == "3" for r in rows(res.out_dir, j)[79:139])
+        assert all(r["fused"] == "3" for r in rows(res.out_dir, j)[79:124])
         assert rows(res.out_dir, j)[-1]["fused"] == "4"
-    back = {r["step"]: r for r in rows(res.out_dir, 2) if int(r["step"]) >= 140}
+    back = {r["step"]: r for r in rows(res.out_dir, 2) if int(r["step"]) >= 125}
     ref = {r["step"]: r for r in rows(res.out_dir, 1)}
-    assert len(back) == 161
+    assert len(back) == 176
     assert max(abs(float(r["x_est"]) - float(ref[k]["x_est"])) for k, r in back.items()) == 0.0
     assert final_gap_error(res.out_dir, range(1, 5)) <= 1 * DEG
 

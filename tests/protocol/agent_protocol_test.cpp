@@ -292,6 +292,60 @@ TEST_CASE("Ranges are validated: zero variance, a step beyond the run, a second 
   CHECK(AllAgreeAt(net, 5));
 }
 
+TEST_CASE("An agent that hears a restarted target before it sees the old one lost uses the new "
+          "target's ranges once it does; a stray writer's are never used", "[protocol]") {
+  for (const bool stray : {false, true}) {
+    CAPTURE(stray);
+    ScriptedNetwork net(kThreeAgents);
+    net.Start();
+    net.RunUntil(2);
+    // GIVEN agent 1 (just resumed from a freeze) still believes the first target alive,
+    // and its range of step 3 comes from another writer: the target's next incarnation
+    const auto range_to_1 = [](const Envelope& e) {
+      return e.to == 1 && std::holds_alternative<protocol::RangeMsg>(e.message);
+    };
+    net.Pump(range_to_1);
+    REQUIRE(net.held.size() == 1);
+    const auto range = std::get<protocol::RangeMsg>(net.held.front().message);
+    net.held.clear();
+    protocol::AgentProtocol& agent = *net.agents.at(1);
+    const deif::protocol::SenderKey next = KeyOf(deif::testing::kTarget, 1);
+    agent.OnRange(range, next, net.now);
+    // THEN it is refused for now, and step 3 stays closed
+    CHECK(agent.counters().by_reason.count("rejected: second_target") == 1);
+    net.AdvanceTime(0.01);
+    CHECK(agent.last_written_step() == 2);
+    CHECK(net.ContributionsOf(1).back().step == 2);
+    if (stray) {  // the other writer leaves first: a stray, whose ranges are dropped
+      agent.OnWriterLiveliness(next, false, net.now);
+      net.AdvanceTime(net.config.network.liveliness_grace_s + 0.01);
+    }
+    // WHEN agent 1 sees the first target lost (past the liveliness grace)
+    net.Liveliness(1, deif::testing::kTarget, false);
+    net.AdvanceTime(net.config.network.liveliness_grace_s + 0.01);
+    const auto contributed3 = [&net] {
+      const auto sent = net.ContributionsOf(1);
+      return std::any_of(sent.begin(), sent.end(),
+                         [](const protocol::ContributionMsg& c) { return c.step == 3; });
+    };
+    if (stray) {
+      // THEN nothing of the stray's is used
+      CHECK_FALSE(contributed3());
+      continue;
+    }
+    // THEN it takes the held range as the restarted target's, contributes to step 3, and
+    // the run goes on with the new incarnation in exact agreement
+    CHECK(contributed3());
+    net.Liveliness(2, deif::testing::kTarget, false);  // the others see the old one go too
+    net.Liveliness(3, deif::testing::kTarget, false);
+    net.incarnation[deif::testing::kTarget] = 1;
+    net.AdvanceTime(net.config.network.liveliness_grace_s + 0.01);
+    net.RunUntil(6);
+    for (StepIndex k = 1; k <= 6; ++k) CHECK(AllAgreeAt(net, k));
+    CHECK(net.rows.at(1)[2].fused == 3);
+  }
+}
+
 TEST_CASE("A range far from the prediction fails the innovation gate and carries no information",
           "[protocol][validation]") {
   ScriptedNetwork net(kThreeAgents);
@@ -541,6 +595,32 @@ TEST_CASE("The target holds a faulted step until told to go, and leaves a killed
   }
   for (const auto& r : net.ranges) {
     if (r.step >= 4) CHECK(r.agent_id != 2);
+  }
+}
+
+TEST_CASE("A fault the network never shows holds the target for half the start timeout, so "
+          "agents waiting for its next range do not give up first", "[protocol]") {
+  // GIVEN agent 2 is to be stopped at step 4, but the stop never happens (nobody sees it go)
+  ScriptedNetwork net(
+      "scenario: {steps: 8}\n"
+      "agents: {count: 3}\n"
+      "network: {start_timeout_s: 4}\n"
+      "faults: [{step: 4, action: stop, agent: 2}]\n",
+      /*hold_for_faults=*/true);
+  net.Start();
+  net.RunUntil(3);
+  net.Pump();
+  REQUIRE(net.holds == std::vector<StepIndex>{4});
+  const double go_s = net.now;
+  net.target->OnGo(4, net.now);
+  // WHEN time passes
+  net.RunUntil(4);
+  // THEN step 4 went out after half the start timeout, and every agent wrote it
+  CHECK(net.now >= go_s + 2.0);
+  CHECK(net.now < go_s + 2.5);
+  for (AgentId id : {1, 2, 3}) {
+    CHECK_FALSE(net.agents.at(id)->finished());
+    CHECK(net.agents.at(id)->last_written_step() == 4);
   }
 }
 

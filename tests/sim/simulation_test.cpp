@@ -237,6 +237,28 @@ TEST_CASE("A target restart loses no step and changes no estimate", "[simulation
   CHECK(restarted.exit_codes.at("target") == 0);
 }
 
+TEST_CASE("An agent frozen while the target restarts takes the new target's ranges once resumed",
+          "[simulation]") {
+  const SimulationResult r = Simulate(
+      "scenario: {steps: 40}\n"
+      "agents: {count: 4}\n"
+      "faults:\n"
+      "  - {step: 10, action: stop, agent: 3}\n"
+      "  - {step: 15, action: restart_target}\n"
+      "  - {step: 20, action: cont, agent: 3}\n");
+  // Every process ends as planned: agent 3 learns at its return that the old target is gone.
+  for (const auto& [name, code] : r.exit_codes) {
+    CAPTURE(name);
+    CHECK(code == 0);
+  }
+  const auto& agent3 = r.run.agents.at(3);
+  REQUIRE(!agent3.empty());
+  CHECK(agent3.back().step == 40);
+  CHECK(agent3.back().fused == 4);
+  CHECK(r.metrics.final_agents == 4);
+  CHECK(r.metrics.agreement_fraction == 1.0);
+}
+
 TEST_CASE("deif_sim rejects a bad config with exit 2, one line, and writes nothing",
           "[simulation][deif_sim]") {
   const fs::path dir = FreshDir("cli_bad");
