@@ -2,12 +2,15 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <set>
 #include <string>
 #include <type_traits>
+#include <variant>
 
 #include <nlohmann/json.hpp>
 
@@ -57,18 +60,38 @@ void TargetNode::Stop() {
 }
 
 bool TargetNode::AnotherTargetInThisRun() {
-  const double wait_s = std::max(1.0, 2.0 * config_.network.participant_announcement_s);
+  // Another target is a range writer of this run that is *alive*, not merely matched: a
+  // Discovery Server goes on announcing a killed target's endpoints until its participant
+  // lease ends (5 s by default), and a target restarted meanwhile matched that dead writer
+  // and refused to start (docs/PROTOCOL.md, "The target", "One per run"). A live writer
+  // asserts its liveliness every lease; a dead one is reported lost a lease after it
+  // matched, if it was reported alive at all. So the window outlasts a lease and its grace.
+  const auto& net = config_.network;
+  const double wait_s = std::max({1.0, 2.0 * net.participant_announcement_s,
+                                  1.5 * net.liveliness_lease_s + net.liveliness_grace_s});
   const auto deadline = dds::Clock::now() + std::chrono::duration_cast<dds::Clock::duration>(
                                                 std::chrono::duration<double>(wait_s));
+  std::set<protocol::SenderKey> alive;
   while (!stop_requested_ && dds::Clock::now() < deadline) {
     for (dds::Event& event : node_.Wait(std::min(deadline, dds::Clock::now() + std::chrono::milliseconds(100)))) {
+      if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
+        if (change->topic == dds::Topic::kRange) {
+          if (change->alive) {
+            alive.insert(change->writer);
+          } else {
+            alive.erase(change->writer);
+          }
+        }
+      } else if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
+        alive.insert(range->from);  // it wrote: it lives (until reported lost)
+      }
       early_events_.push_back(std::move(event));
     }
-    if (node_.MatchedWriters(dds::Topic::kRange) > 0) {
-      context_.log->error("run '{}' already has a target on domain {}", context_.run_name,
-                          config_.network.domain_id);
-      return true;
-    }
+  }
+  if (!alive.empty() && node_.MatchedWriters(dds::Topic::kRange) > 0) {
+    context_.log->error("run '{}' already has a target on domain {}", context_.run_name,
+                        config_.network.domain_id);
+    return true;
   }
   return false;
 }

@@ -503,12 +503,18 @@ def test_discovery_server(work, domain):
     """N=4, lock-step with the run's own Fast DDS Discovery Server (deif-run
     --discovery-server): every agent equals the in-process simulation at every step, and no
     server outlives its run: a second run on the same domain (the same server port) starts
-    its server and completes too."""
+    its server and completes too. In the second the target is killed and restarted before
+    step 30: the server still announces the dead target for a participant lease, and the new
+    target must not take that for a live one (it refused to start, exit 3)."""
     port = 11811 + domain
     try:
         for name in ("first", "second"):
-            res = launch(work, domain, name=name, agents=4, steps=60, discovery_server=True)
+            faults = [launcher.Fault(30, "restart_target")] if name == "second" else []
+            res = launch(work, domain, name=name, agents=4, steps=60, discovery_server=True,
+                         faults=faults)
             assert res.ok, res.summary["processes"]
+            target = next(p for p in res.summary["processes"] if p["name"] == "target")
+            assert target["restarts"] == len(faults)
             assert [p["name"] for p in res.summary["processes"]].count("discovery_server") == 1
             cfg = open(os.path.join(res.out_dir, "config.yaml")).read()
             assert "discovery: server" in cfg and f"127.0.0.1:{port}" in cfg
