@@ -110,7 +110,14 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
       Drop("the target", "range_too_old");
       return;
     }
+    const bool opened_on_the_clock = !it->second.roll_call;  // a range sets the roll call
     ApplyRange(it->second, msg, unusable_measurement);
+    if (RealTime() && opened_on_the_clock && msg.step == records_.rbegin()->first) {
+      // Real time: the newest step's range came after its deadline, so the target's clock
+      // runs behind ours (a restarted target keeps its own period's phase): follow it, or
+      // every later range would miss its deadline too (docs/PROTOCOL.md, "An agent", clock).
+      clock_sync_ = std::make_pair(msg.step, now_s);
+    }
     Advance(now_s);
     return;
   }

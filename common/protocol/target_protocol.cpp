@@ -192,8 +192,16 @@ void TargetProtocol::Advance(double now_s) {
         const bool settled = resuming && now_s - start_s_ >= settle_s &&
                              now_s - last_new_agent_s_ >= settle_s && !alive.empty();
         const bool timed_out = now_s - start_s_ >= config_.network.start_timeout_s;
-        if (everyone || settled || (timed_out && !alive.empty())) {
+        // A real-time target that resumes a run does not start as soon as everyone is
+        // here: the agents' newest states (their clock went on meanwhile) may still be in
+        // the backlog it is reading, and it must start after the newest.
+        const bool wait_for_newest = RealTime() && resuming;
+        if ((everyone && !wait_for_newest) || settled || (timed_out && !alive.empty())) {
           first_step_ = options_.start_step ? *options_.start_step : newest + 1;
+          // Real time: the world went on while this target was down, and the agents stepped
+          // on their clock; it resumes at the step after the newest they wrote, not at the
+          // step it was killed before (docs/PROTOCOL.md, "Resuming in real time").
+          if (RealTime()) first_step_ = std::max(first_step_, newest + 1);
           std::string who;
           for (AgentId id : alive) who += " " + std::to_string(id);
           Log(LogLevel::kInfo, std::to_string(alive.size()) + " of " +

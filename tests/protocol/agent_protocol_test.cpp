@@ -568,6 +568,73 @@ TEST_CASE("In real time a step is written at its deadline with what arrived, and
   CHECK(AllAgreeAt(net, 3));
 }
 
+TEST_CASE("In real time an agent whose ranges come after their deadline follows the target's "
+          "clock instead of missing every step",
+          "[protocol]") {
+  ScriptedNetwork net(
+      "scenario: {steps: 20, mode: realtime, period_s: 0.1}\n"
+      "agents: {count: 3}\n"
+      "network: {history_steps: 8, deadline_fraction: 0.5}\n");
+  net.Start();
+  net.Pump();
+  REQUIRE(net.agents.at(1)->last_written_step() == 1);
+  // GIVEN from step 2 on every range for agent 1 arrives 0.07 s after the target wrote it,
+  // past the agent's deadline (0.05 s), as from a target whose clock runs behind its own
+  const auto range_to_1 = [](const Envelope& e) {
+    return e.to == 1 && std::holds_alternative<protocol::RangeMsg>(e.message);
+  };
+  net.AdvanceTime(0.1);  // t = 0.1: the target writes step 2
+  for (int k = 2; k <= 10; ++k) {
+    net.Pump(range_to_1);
+    net.AdvanceTime(0.07);
+    net.ReleaseHeld();
+    net.Pump();
+    net.AdvanceTime(0.03);  // t = 0.1 k: the target writes step k + 1
+  }
+  // THEN only the first late range is missed: the agent's deadlines follow the target
+  CHECK(net.agents.at(1)->last_written_step() >= 9);
+  CHECK(net.agents.at(1)->counters().deadline_misses <= 1);
+  for (const auto& row : net.rows.at(1)) {
+    if (row.step >= 3) CHECK(row.fused == 3);
+  }
+}
+
+TEST_CASE("A real-time target that resumes a run starts after the newest step the agents wrote, "
+          "even when their states arrive as one backlog",
+          "[protocol]") {
+  const deif::Config config = deif::ParseConfig(
+      "scenario: {steps: 100, mode: realtime, period_s: 0.1}\nagents: {count: 3}\n", "inline");
+  protocol::TargetProtocol::Options options;
+  options.run = ScriptedNetwork::kRun;
+  options.start_step = 6;  // killed before step 6; the agents went on on their clock
+  protocol::TargetProtocol target(config, options);
+  target.Start(0.0);
+  // GIVEN every agent's states of steps 5..20 arrive at once, oldest first (a new reader's
+  // backlog), each agent present and hearing the others
+  for (StepIndex k = 5; k <= 20; ++k) {
+    for (AgentId id = 1; id <= 3; ++id) {
+      protocol::StateMsg state;
+      state.run = ScriptedNetwork::kRun;
+      state.agent_id = id;
+      state.instance_token = static_cast<std::uint64_t>(id);
+      state.step = k;
+      state.position_m = Vector2(2.0, static_cast<double>(id));
+      state.matched = 3;
+      target.OnState(state, KeyOf(id), 0.0);
+    }
+  }
+  const auto first_range = [&target]() -> StepIndex {
+    for (auto& action : target.TakeActions()) {
+      if (const auto* r = std::get_if<protocol::target_action::PublishRange>(&action)) return r->msg.step;
+    }
+    return 0;
+  };
+  // THEN it does not start in the middle of that backlog, and starts at step 21
+  CHECK(first_range() == 0);
+  target.OnTimer(1.5);
+  CHECK(first_range() == 21);
+}
+
 TEST_CASE("The target holds a faulted step until told to go, and leaves a killed agent out of "
           "its roll call",
           "[protocol]") {
