@@ -503,6 +503,14 @@ class Rules {
       Blame({"network.security.enabled", "network.ros2_naming"},
             "security.enabled needs ros2_naming: false");
     }
+    if (n.security.enabled && n.discovery == DiscoveryKind::kServer) {
+      // Fast DDS 2.9.1 authenticates no participant through a Discovery Server (secure
+      // Discovery Server came with Fast DDS 2.10): every secure process stalled at start,
+      // the run never began (docs/SECURITY.md, "Known limits").
+      Blame({"network.discovery", "network.security.enabled"},
+            "security.enabled needs discovery: simple (Fast DDS 2.9.1 cannot authenticate "
+            "through a Discovery Server)");
+    }
   }
 
   void StepWithinRun(const std::string& key, StepIndex step) const {

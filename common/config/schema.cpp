@@ -591,7 +591,7 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "network.");
   t.Add("security.enabled", [](Config& c) -> auto& { return c.network.security.enabled; })
       .Default(false)
-      .Note("needs ros2_naming: false")
+      .Note("needs ros2_naming: false and discovery: simple")
       .Doc("DDS Security (docs/SECURITY.md): every participant proves a certificate of the "
            "network's CA (PKI-DH), may publish only its own topics as its own id "
            "(Access-Permissions) and encrypts what it sends (AES-GCM-GMAC). A process without "

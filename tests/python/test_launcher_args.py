@@ -53,6 +53,7 @@ def test_bad_partition_is_refused(text):
     ({"loss": 0.1}, "need --hosts 2"),
     ({"partitions": [launcher.Partition(10, 1.0, 2)]}, "need --hosts 2"),
     ({"hosts": 2, "partitions": [launcher.Partition(10, 1.0, 3)]}, "only 2 hosts"),
+    ({"secure": True, "discovery_server": True}, "cannot authenticate through a Discovery Server"),
 ])
 def test_bad_host_arguments_start_nothing(deif_sim, work_dir, kwargs, message):
     out = os.path.join(work_dir, "run")
