@@ -113,6 +113,27 @@ class RunResult:
     summary: dict = field(default_factory=dict)
 
 
+# The run's Discovery Server (deif-run --discovery-server): a server over UDPv4 only.
+DISCOVERY_SERVER_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor><transport_id>udp</transport_id><type>UDPv4</type></transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="deif_discovery_server" is_default_profile="true">
+      <rtps>
+        <userTransports><transport_id>udp</transport_id></userTransports>
+        <useBuiltinTransports>false</useBuiltinTransports>
+        <builtin>
+          <discovery_config><discoveryProtocol>SERVER</discoveryProtocol></discovery_config>
+        </builtin>
+      </rtps>
+    </participant>
+  </profiles>
+</dds>
+"""
+
+
 def shm_snapshot():
     try:
         return {n for n in os.listdir(SHM_DIR) if n.startswith(SHM_PREFIXES)}
@@ -388,7 +409,14 @@ class Launcher:
             # The server itself, not the `fastdds discovery` wrapper: the wrapper starts it as
             # a child that outlived the wrapper's SIGTERM (and then held the port, so the next
             # run's server could not start).
-            p = Proc("discovery_server", ["/usr/bin/fast-discovery-server", "-i", "0", "-l", ip, "-p", str(port)],
+            # UDPv4 only (its clients reach it at ip:port anyway): with Fast DDS's default
+            # transports it also opened a shared-memory port of domain 0, which a run now and
+            # then left behind in /dev/shm.
+            profile = os.path.join(self.out_dir, "discovery-server.xml")
+            with open(profile, "w") as f:
+                f.write(DISCOVERY_SERVER_PROFILE)
+            p = Proc("discovery_server", ["/usr/bin/fast-discovery-server", "-i", "0", "-l", ip, "-p", str(port),
+                                          "-x", profile],
                      host=1, log_path=os.path.join(self.out_dir, "logs", "discovery-server.log"))
             self._spawn(p)
             p.expected_death = True  # stopped by the launcher at the end
