@@ -30,9 +30,19 @@ constexpr const char* kThreeAgents =
     "agents: {count: 3}\n"
     "network: {history_steps: 8, step_timeout_s: 0.5}\n";
 
+// Real time at 10 Hz; an agent's deadline is 0.05 s after its range.
+constexpr const char* kThreeAgentsRealTime =
+    "scenario: {steps: 20, mode: realtime, period_s: 0.1}\n"
+    "agents: {count: 3}\n"
+    "network: {history_steps: 8, deadline_fraction: 0.5}\n";
+
 bool IsContribution(const Envelope& e, AgentId from, AgentId to, StepIndex step) {
   const auto* c = std::get_if<protocol::ContributionMsg>(&e.message);
   return c != nullptr && e.from == from && e.to == to && c->step == step;
+}
+
+bool IsRangeToAgent1(const Envelope& e) {
+  return e.to == 1 && std::holds_alternative<protocol::RangeMsg>(e.message);
 }
 
 bool SameBits(const InfoState& a, const InfoState& b) { return a.y == b.y && a.Y == b.Y; }
@@ -301,10 +311,7 @@ TEST_CASE("An agent that hears a restarted target before it sees the old one los
     net.RunUntil(2);
     // GIVEN agent 1 (just resumed from a freeze) still believes the first target alive,
     // and its range of step 3 comes from another writer: the target's next incarnation
-    const auto range_to_1 = [](const Envelope& e) {
-      return e.to == 1 && std::holds_alternative<protocol::RangeMsg>(e.message);
-    };
-    net.Pump(range_to_1);
+    net.Pump(IsRangeToAgent1);
     REQUIRE(net.held.size() == 1);
     const auto range = std::get<protocol::RangeMsg>(net.held.front().message);
     net.held.clear();
@@ -535,10 +542,7 @@ TEST_CASE("A member frozen for fewer steps than the history catches up exactly",
 TEST_CASE("In real time a step is written at its deadline with what arrived, and a step without "
           "a range on the clock",
           "[protocol]") {
-  ScriptedNetwork net(
-      "scenario: {steps: 20, mode: realtime, period_s: 0.1}\n"
-      "agents: {count: 3}\n"
-      "network: {history_steps: 8, deadline_fraction: 0.5}\n");
+  ScriptedNetwork net(kThreeAgentsRealTime);
   net.Start();
   net.Pump();
   // The target published step 1 at t = 0; everything arrives at once: complete.
@@ -571,21 +575,15 @@ TEST_CASE("In real time a step is written at its deadline with what arrived, and
 TEST_CASE("In real time an agent whose ranges come after their deadline follows the target's "
           "clock instead of missing every step",
           "[protocol]") {
-  ScriptedNetwork net(
-      "scenario: {steps: 20, mode: realtime, period_s: 0.1}\n"
-      "agents: {count: 3}\n"
-      "network: {history_steps: 8, deadline_fraction: 0.5}\n");
+  ScriptedNetwork net(kThreeAgentsRealTime);
   net.Start();
   net.Pump();
   REQUIRE(net.agents.at(1)->last_written_step() == 1);
   // GIVEN from step 2 on every range for agent 1 arrives 0.07 s after the target wrote it,
   // past the agent's deadline (0.05 s), as from a target whose clock runs behind its own
-  const auto range_to_1 = [](const Envelope& e) {
-    return e.to == 1 && std::holds_alternative<protocol::RangeMsg>(e.message);
-  };
   net.AdvanceTime(0.1);  // t = 0.1: the target writes step 2
   for (int k = 2; k <= 10; ++k) {
-    net.Pump(range_to_1);
+    net.Pump(IsRangeToAgent1);
     net.AdvanceTime(0.07);
     net.ReleaseHeld();
     net.Pump();
