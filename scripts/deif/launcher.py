@@ -227,10 +227,6 @@ class Launcher:
         # or the given folder's. Every process gets the same two keys.
         self.secure = secure or certs_dir is not None
         self.certs_given = certs_dir is not None
-        if self.secure and discovery_server:
-            raise LaunchError("--secure with --discovery-server: Fast DDS 2.9.1 cannot "
-                              "authenticate through a Discovery Server; secure runs use simple "
-                              "discovery (docs/SECURITY.md, \"Known limits\")")
         if self.secure:
             self.certs_dir = os.path.abspath(certs_dir if certs_dir is not None
                                              else os.path.join(out_dir, "certs"))
