@@ -35,7 +35,12 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
   // Garbage under ids no agent of the run has is dropped as it arrives (and counted).
   node_.AddReader({dds::Topic::kContribution, {}, std::make_pair(AgentId{1}, AgentId{config_.agents.count})});
-  node_.AddReader({dds::Topic::kAgentState, id_});   // only states claiming this id: duplicates
+  // Only states claiming this id, for the start check of AnotherProcessHasThisId and no
+  // longer: every peer's state writer matches a reader filtered to one id and sends it
+  // traffic about the samples it filters out, which doubled the packets of a step
+  // (docs/BENCHMARKS.md, "Readers that want nothing"). Once running, another process that
+  // speaks for this id shows in its contributions (agent_id_clash).
+  node_.AddReader({dds::Topic::kAgentState, id_});
   if (node_.AuthenticationRestarts() > 0) {
     context_.log->warn("authentication with a peer stalled at start; participant created anew {} "
                        "time(s) (docs/SECURITY.md, \"Start-up\")",
@@ -79,6 +84,7 @@ bool AgentNode::AnotherProcessHasThisId() {
 
 int AgentNode::Run() {
   if (AnotherProcessHasThisId()) return protocol::kExitDuplicate;
+  node_.RemoveReader(dds::Topic::kAgentState);
   if (stop_requested_) return protocol::kExitOk;
   node_.StartLiveliness();  // only now do our writers become alive to the peers
   if (!context_.options.out_dir.empty()) {
@@ -159,15 +165,9 @@ void AgentNode::Dispatch(const dds::Event& event, double now_s) {
     }
     protocol_.OnContribution(c->msg, c->from, now_s);
   } else if (const auto* state = std::get_if<dds::Received<protocol::StateMsg>>(&event)) {
+    // Only from the start check (the reader is gone since): refused samples are counted.
     if (!Authorised(state->msg.agent_id, state->from)) {
       protocol_.OnUnauthorised(state->msg.agent_id, state->from);
-      return;
-    }
-    if (state->msg.instance_token != instance_token_ &&
-        state->msg.run == protocol::RunTokenOf(context_.run_name)) {
-      context_.log->warn("another process publishes states as agent {} (writer {}); its "
-                         "contributions are refused while ours live",
-                         id_, protocol::ToString(state->from));
     }
   } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
     if (change->topic == dds::Topic::kContribution || change->topic == dds::Topic::kRange) {

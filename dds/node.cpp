@@ -684,6 +684,7 @@ void Node::AddReader(const ReaderSpec& spec) {
     description = filtered;
   }
   const Topic topic = spec.topic;
+  if (d.readers.count(topic) > 0) throw std::logic_error(std::string("a second reader on ") + NamesOf(topic).name);
   auto listener = std::make_unique<LivelinessListener>(
       [&d, topic](const protocol::SenderKey& writer, bool alive) {
         {
@@ -703,6 +704,25 @@ void Node::AddReader(const ReaderSpec& spec) {
   d.waitset.attach_condition(reader->get_statuscondition());
   d.readers[topic] = reader;
   d.listeners[topic] = std::move(listener);
+}
+
+void Node::RemoveReader(Topic topic) {
+  Impl& d = *impl_;
+  auto it = d.readers.find(topic);
+  if (it == d.readers.end()) return;
+  fdds::DataReader* reader = it->second;
+  d.waitset.detach_condition(reader->get_statuscondition());
+  const fdds::TopicDescription* description = reader->get_topicdescription();
+  if (d.subscriber->delete_datareader(reader) != ReturnCode_t::RETCODE_OK) {
+    throw std::runtime_error(std::string("cannot delete the reader on ") + NamesOf(topic).name);
+  }
+  d.readers.erase(it);
+  d.listeners.erase(topic);  // after the reader that called it
+  auto filtered = std::find(d.filtered.begin(), d.filtered.end(), description);
+  if (filtered != d.filtered.end()) {
+    d.participant->delete_contentfilteredtopic(*filtered);
+    d.filtered.erase(filtered);
+  }
 }
 
 void Node::StartLiveliness() {

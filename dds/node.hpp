@@ -62,6 +62,9 @@ class Node {
 
   void AddWriter(Topic topic);
   void AddReader(const ReaderSpec& spec);
+  // Deletes this node's reader of `topic` (and its content filter), if it has one: the
+  // peers' writers stop matching it. From the thread that calls Wait(), never during it.
+  void RemoveReader(Topic topic);
   // Makes this node passive for good (an observer, docs/LIVE.md): it has no writer, and
   // AddWriter throws std::logic_error from now on, so it never publishes on the network's
   // topics. Throws std::logic_error if it already has a writer.

@@ -1,10 +1,10 @@
 """Benchmarks of the whole system on one host (scripts/deif-bench; docs/BENCHMARKS.md).
 
-Sections (all by default; --only picks some): core, pingpong, lockstep, failure, wire,
-network, realtime (scripts/deif/bench_network.py), security (scripts/deif/bench_security.py),
+Sections (all by default; --only picks some): core, pingpong, alltoall, lockstep, failure,
+wire, network, realtime (scripts/deif/bench_network.py), security (scripts/deif/bench_security.py),
 hostile (scripts/deif/bench_hostile.py; needs deif_hostile, built with the tests).
 Executables come from ${DEIF_BUILD_DIR:-build}/bin: deif_agent, deif_target (through
-deif.launcher), core_bench, dds_pingpong, step_observer. A benchmark program that is missing,
+deif.launcher), core_bench, dds_pingpong, dds_alltoall, step_observer. A benchmark program that is missing,
 or older than its bench/<name>.cpp (it did not build from the current source), is skipped
 with a message; the rest runs. DDS domains 200..230 only. Every process started here is
 waited for; the shared-memory files our runs leave are removed.
@@ -35,7 +35,7 @@ from . import artefacts, config, launcher, paths
 ROOT = paths.ROOT
 DEFAULT_CONFIG = os.path.join(ROOT, "configs", "default.yaml")
 RESULTS_DIR = os.path.join(ROOT, "bench", "results")
-SECTIONS = ("core", "pingpong", "lockstep", "failure", "wire", "network", "realtime", "security",
+SECTIONS = ("core", "pingpong", "alltoall", "lockstep", "failure", "wire", "network", "realtime", "security",
             "hostile", "discovery")
 LOG_TIME = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\]")
 TARGET_DONE = re.compile(r"done at step (\d+) after ([\d.]+) s")
@@ -242,6 +242,51 @@ def run_pingpong(exe, transport, samples, domain):
         return json.loads(ping.stdout.strip().splitlines()[-1])
     except (ValueError, IndexError):
         return {"transport": transport, "error": "no JSON on stdout: " + ping.stdout.strip()[-300:]}
+
+
+def alltoall_rounds(n, quick):
+    """Rounds of the all-to-all floor: a few seconds at every N (a round costs ~N^2)."""
+    rounds = 3000 if n <= 8 else 600 if n <= 16 else 150 if n <= 32 else 60
+    return rounds // 3 if quick else rounds
+
+
+def run_alltoall(exe, n, rounds, domain, timeout_s):
+    """N dds_alltoall processes on one domain (docs/BENCHMARKS.md, "The floor"): the rate of
+    rounds in which every process hears every other once, and the CPU of all of them per
+    round."""
+    before = launcher.shm_snapshot()
+    warmup = max(5, rounds // 10)
+    argv = lambda j: [exe, "--id", str(j), "--peers", str(n), "--rounds", str(rounds),  # noqa: E731
+                      "--warmup", str(warmup), "--domain", str(domain), "--timeout", str(timeout_s)]
+    procs = [subprocess.Popen(argv(j), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for j in range(1, n + 1)]
+    outs = []
+    try:
+        for p in procs:
+            try:
+                out, err = p.communicate(timeout=timeout_s + 30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                out, err = p.communicate()
+            outs.append((p.returncode, out, err))
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+        launcher.shm_cleanup(before)
+    figs = []
+    for code, out, err in outs:
+        try:
+            figs.append(json.loads(out.strip().splitlines()[-1]))
+        except (ValueError, IndexError):
+            return {"n": n, "rounds": rounds, "error": f"exit {code}: {err.strip()[-300:]}"}
+    cpu = sum(f["cpu_s"] for f in figs)
+    return {"n": n, "rounds": rounds, "rounds_per_s": median([f["rounds_per_s"] for f in figs]),
+            "slowest_rounds_per_s": min(f["rounds_per_s"] for f in figs),
+            "cpu_ms_per_round": cpu * 1000.0 / rounds,
+            "deliveries_per_round": n * (n - 1),
+            "cpu_us_per_delivery": cpu * 1e6 / rounds / (n * (n - 1))}
 
 
 # ---------------------------------------------------------------------------------------
@@ -645,6 +690,20 @@ def make_table(res):
             lines.append(f"| {t} | {fmt(median([rtt_us(r, 'p50') for r in runs]))} | "
                          f"{fmt(median([rtt_us(r, 'p99') for r in runs]))} | {len(runs)} |")
         lines.append("")
+    if res.get("alltoall"):
+        lines.append("**All-to-all floor (dds_alltoall: N processes, each hears every other once a round; "
+                     "no range, no state, no maths)**")
+        lines.append("")
+        lines.append("| N | rounds/s | CPU per round, all processes [ms] | CPU per delivery [us] "
+                     "| lock-step steps/s, same invocation | lock-step / floor | runs |")
+        lines.append("| --- | --- | --- | --- | --- | --- | --- |")
+        for n, f in sorted(res["alltoall"].items(), key=lambda kv: int(kv[0])):
+            lk = steps_per_s((res.get("lockstep") or {}).get(n) or {})
+            ratio = lk / f["rounds_per_s"] if lk and f.get("rounds_per_s") else None
+            lines.append(f"| {n} | {fmt(f.get('rounds_per_s'), '.1f')} | {fmt(f.get('cpu_ms_per_round'), '.2f')} | "
+                         f"{fmt(f.get('cpu_us_per_delivery'), '.0f')} | {fmt(lk, '.1f')} | {fmt(ratio, '.2f')} | "
+                         f"{f['runs_ok']}/{f['runs']} |")
+        lines.append("")
     if res.get("lockstep"):
         lines.append("**Lock-step (1 target + N agent processes, this host)**")
         lines.append("")
@@ -823,14 +882,20 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
             if why:
                 log(f"pingpong: skipped: {why}")
                 res["skipped"]["pingpong"] = why
+        alltoall_exe = None
+        if "alltoall" in sections:
+            alltoall_exe, why = bench_program("dds_alltoall")
+            if why:
+                log(f"alltoall: skipped: {why}")
+                res["skipped"]["alltoall"] = why
         if "lockstep" in sections or "discovery" in sections:
             observer_exe, why = bench_program("step_observer")
             if why:
                 log(f"lockstep: no step latency or discovery figures: {why}")
                 res["skipped"]["step_observer"] = why + "; no latency or discovery figures"
         pp = {"shm": [], "udp": []}
-        lock = {}
-        if pingpong_exe or "lockstep" in sections:
+        lock, floor = {}, {}
+        if pingpong_exe or alltoall_exe or "lockstep" in sections:
             samples = 1000 if quick else 5000
             # The baseline and the lock-step runs side by side: ping-pong, then lock-step.
             for rep in range(reps):
@@ -838,6 +903,11 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                     for t in ("shm", "udp"):
                         log(f"ping-pong {t} ({samples} samples)")
                         pp[t].append(run_pingpong(pingpong_exe, t, samples, domains.take()))
+                for n in ns if alltoall_exe else ():
+                    rounds = alltoall_rounds(n, quick)
+                    log(f"all-to-all N={n}, {rounds} rounds (rep {rep + 1}/{reps})")
+                    floor.setdefault(n, []).append(
+                        run_alltoall(alltoall_exe, n, rounds, domains.take(), 60.0 if n <= 16 else 150.0))
                 if "lockstep" in sections:
                     for n in ns:
                         steps = lockstep_steps(n, quick)
@@ -850,6 +920,17 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                 pp["shm_p50_us_median"] = median([rtt_us(r, "p50") for r in pp["shm"]])
                 pp["udp_p50_us_median"] = median([rtt_us(r, "p50") for r in pp["udp"]])
                 res["pingpong"] = pp
+            if floor:
+                res["alltoall_runs"] = {str(n): v for n, v in floor.items()}
+                res["alltoall"] = {}
+                for n, runs in floor.items():
+                    ok = [r for r in runs if "error" not in r]
+                    res["alltoall"][str(n)] = {
+                        "n": n, "runs_ok": len(ok), "runs": len(runs),
+                        "rounds_per_s": median([r["rounds_per_s"] for r in ok]) if ok else None,
+                        "cpu_ms_per_round": median([r["cpu_ms_per_round"] for r in ok]) if ok else None,
+                        "cpu_us_per_delivery": median([r["cpu_us_per_delivery"] for r in ok]) if ok else None,
+                        "errors": [r["error"] for r in runs if "error" in r]}
             if lock:
                 res["lockstep_runs"] = {str(n): v for n, v in lock.items()}
                 res["lockstep"] = {str(n): median_run(v) for n, v in lock.items()}
