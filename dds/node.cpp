@@ -515,6 +515,10 @@ struct Node::Impl {
   std::map<Topic, fdds::Topic*> topics;
   std::vector<fdds::ContentFilteredTopic*> filtered;
   std::map<Topic, fdds::DataWriter*> writers;
+  // Ranges in a partition per agent (RangePartitions): the writer for each agent id, made
+  // when the first range for it is written; writers[kRange] is the one for agent 1.
+  bool range_partitions = false;
+  std::map<AgentId, fdds::DataWriter*> range_writers;
   std::map<Topic, fdds::DataReader*> readers;
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   std::map<Topic, std::unique_ptr<MatchListener>> writer_listeners;
@@ -536,6 +540,7 @@ struct Node::Impl {
   std::condition_variable assert_cv;
   bool assert_stop = false;
   std::map<fdds::DataWriter*, Clock::time_point> last_write;  // guarded by assert_mutex
+  std::vector<fdds::DataWriter*> asserted;  // MANUAL_BY_TOPIC writers; guarded by assert_mutex
   std::thread asserter;
 
   explicit Impl(const Config& c) : config(c) {}
@@ -613,6 +618,7 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
     publisher_qos.partition().push_back(published.c_str());
     subscriber_qos.partition().push_back(subscribed.c_str());
   }
+  d.range_partitions = !ros2 && !d.secure;
   d.publisher = d.participant->create_publisher(publisher_qos);
   d.subscriber = d.participant->create_subscriber(subscriber_qos);
   if (d.publisher == nullptr || d.subscriber == nullptr) {
@@ -639,19 +645,67 @@ Node::~Node() {
   fdds::DomainParticipantFactory::get_instance()->delete_participant(d.participant);
 }
 
+namespace {
+
+// The partition of the ranges for agent `id` (RangePartitions).
+std::string RangePartition(const std::string& run_name, AgentId id) {
+  return "deif." + run_name + ".range." + std::to_string(id);
+}
+
+fdds::DataWriter* RangeWriterFor(Node::Impl& d, AgentId id) {
+  auto it = d.range_writers.find(id);
+  if (it != d.range_writers.end()) return it->second;
+  fdds::PublisherQos qos = fdds::PUBLISHER_QOS_DEFAULT;
+  const std::string run_partition = "deif." + d.run_name;
+  const std::string own_partition = RangePartition(d.run_name, id);
+  qos.partition().push_back(run_partition.c_str());  // what every reader of all ranges joins
+  qos.partition().push_back(own_partition.c_str());  // what agent `id` joins
+  fdds::Publisher* publisher = d.participant->create_publisher(qos);
+  fdds::DataWriter* writer =
+      publisher == nullptr ? nullptr
+                           : publisher->create_datawriter(d.topics.at(Topic::kRange), WriterQos(Topic::kRange, d.config),
+                                                          d.writer_listeners.at(Topic::kRange).get(),
+                                                          fdds::StatusMask::publication_matched());
+  if (writer == nullptr) {
+    throw std::runtime_error("cannot create the writer of ranges for agent " + std::to_string(id));
+  }
+  d.range_writers[id] = writer;
+  d.own_writers.insert(ToKey(writer->get_instance_handle()));
+  {
+    // A new writer asserts like the others (StartLiveliness), from its first period on.
+    std::lock_guard<std::mutex> lock(d.assert_mutex);
+    d.last_write[writer] = Clock::now();
+    if (d.asserter.joinable()) d.asserted.push_back(writer);  // else StartLiveliness adds it
+  }
+  return writer;
+}
+
+}  // namespace
+
 void Node::AddWriter(Topic topic) {
   Impl& d = *impl_;
   if (d.passive) {
     throw std::logic_error(std::string("a passive node has no writer (") + NamesOf(topic).name + ")");
   }
   auto listener = std::make_unique<MatchListener>([&d] { d.guard.set_trigger_value(true); });
+  MatchListener* matches = listener.get();
+  d.writer_listeners[topic] = std::move(listener);
+  if (topic == Topic::kRange && d.range_partitions) {
+    // One writer per agent, each in the run's partition and its agent's: an agent's reader
+    // matches only its own (docs/PROTOCOL.md, "Ranges"). Every agent of the run has one
+    // from the start, so that the matches the target waits for are there.
+    for (AgentId j = 1; j <= static_cast<AgentId>(std::max(1, d.config.agents.count)); ++j) {
+      RangeWriterFor(d, j);
+    }
+    d.writers[topic] = d.range_writers.at(1);
+    return;
+  }
   fdds::DataWriter* writer = d.publisher->create_datawriter(
-      d.topics.at(topic), WriterQos(topic, d.config), listener.get(), fdds::StatusMask::publication_matched());
+      d.topics.at(topic), WriterQos(topic, d.config), matches, fdds::StatusMask::publication_matched());
   if (writer == nullptr) {
     throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
   }
   d.writers[topic] = writer;
-  d.writer_listeners[topic] = std::move(listener);
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
 }
 
@@ -694,7 +748,18 @@ void Node::AddReader(const ReaderSpec& spec) {
         d.guard.set_trigger_value(true);
       },
       [&d] { d.guard.set_trigger_value(true); });
-  fdds::DataReader* reader = d.subscriber->create_datareader(
+  fdds::Subscriber* subscriber = d.subscriber;
+  if (topic == Topic::kRange && d.range_partitions && spec.only_id && *spec.only_id >= 1) {
+    // Only its own agent's partition (docs/PROTOCOL.md, "Ranges"): the target's writers of
+    // the other agents' ranges do not match it, so they send it nothing, not even news of
+    // samples the filter would drop. The filter stays, against anyone else's writer there.
+    fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
+    const std::string partition = RangePartition(d.run_name, *spec.only_id);
+    qos.partition().push_back(partition.c_str());
+    subscriber = d.participant->create_subscriber(qos);
+    if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+  }
+  fdds::DataReader* reader = subscriber->create_datareader(
       description, ReaderQos(topic, d.config), listener.get(),
       fdds::StatusMask::liveliness_changed() << fdds::StatusMask::subscription_matched());
   if (reader == nullptr) {
@@ -713,7 +778,8 @@ void Node::RemoveReader(Topic topic) {
   fdds::DataReader* reader = it->second;
   d.waitset.detach_condition(reader->get_statuscondition());
   const fdds::TopicDescription* description = reader->get_topicdescription();
-  if (d.subscriber->delete_datareader(reader) != ReturnCode_t::RETCODE_OK) {
+  auto* subscriber = const_cast<fdds::Subscriber*>(reader->get_subscriber());
+  if (subscriber->delete_datareader(reader) != ReturnCode_t::RETCODE_OK) {
     throw std::runtime_error(std::string("cannot delete the reader on ") + NamesOf(topic).name);
   }
   d.readers.erase(it);
@@ -730,37 +796,39 @@ void Node::StartLiveliness() {
   if (d.asserter.joinable()) return;
   const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(
       EffectiveTimings(d.config).liveliness_lease_s / EffectiveTimings(d.config).assertions_per_lease));
-  std::vector<fdds::DataWriter*> manual;
-  for (auto& [topic, writer] : d.writers) {
-    if (QosOf(topic, d.config.network).manual_liveliness) manual.push_back(writer);
-  }
   {
     std::lock_guard<std::mutex> lock(d.assert_mutex);
-    for (fdds::DataWriter* writer : manual) d.last_write[writer] = Clock::now() - period;
-  }
-  // A write renews a writer's liveliness, so only writers idle for a period assert: in a
-  // busy network every assertion is a message to every matched reader.
-  d.asserter = std::thread([&d, manual, period] {
-    std::unique_lock<std::mutex> lock(d.assert_mutex);
-    while (!d.assert_stop) {
-      const auto now = Clock::now();
-      for (fdds::DataWriter* writer : manual) {
-        if (now - d.last_write[writer] >= period) writer->assert_liveliness();
-      }
-      d.assert_cv.wait_for(lock, period, [&d] { return d.assert_stop; });
+    for (auto& [topic, writer] : d.writers) {
+      if (topic == Topic::kRange && d.range_partitions) continue;  // below, every one
+      if (QosOf(topic, d.config.network).manual_liveliness) d.asserted.push_back(writer);
     }
-  });
+    for (auto& [id, writer] : d.range_writers) d.asserted.push_back(writer);
+    for (fdds::DataWriter* writer : d.asserted) d.last_write[writer] = Clock::now() - period;
+    // A write renews a writer's liveliness, so only writers idle for a period assert: in a
+    // busy network every assertion is a message to every matched reader.
+    d.asserter = std::thread([&d, period] {
+      std::unique_lock<std::mutex> held(d.assert_mutex);
+      while (!d.assert_stop) {
+        const auto now = Clock::now();
+        for (fdds::DataWriter* writer : d.asserted) {
+          if (now - d.last_write[writer] >= period) writer->assert_liveliness();
+        }
+        d.assert_cv.wait_for(held, period, [&d] { return d.assert_stop; });
+      }
+    });
+  }
 }
 
 namespace {
 
 template <typename Idl>
-void WriteSample(Node::Impl& d, Topic topic, Idl sample) {
+void WriteSample(Node::Impl& d, Topic topic, Idl sample, std::optional<AgentId> range_for = std::nullopt) {
   auto it = d.writers.find(topic);
   if (it == d.writers.end()) throw std::logic_error(std::string("no writer on ") + NamesOf(topic).name);
-  it->second->write(&sample);
+  fdds::DataWriter* writer = range_for && d.range_partitions ? RangeWriterFor(d, *range_for) : it->second;
+  writer->write(&sample);
   std::lock_guard<std::mutex> lock(d.assert_mutex);
-  d.last_write[it->second] = Clock::now();
+  d.last_write[writer] = Clock::now();
 }
 
 template <typename Idl, typename Msg>
@@ -782,7 +850,9 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
 }  // namespace
 
 void Node::Write(const protocol::TruthMsg& msg) { WriteSample(*impl_, Topic::kTruth, ToIdl(msg)); }
-void Node::Write(const protocol::RangeMsg& msg) { WriteSample(*impl_, Topic::kRange, ToIdl(msg)); }
+void Node::Write(const protocol::RangeMsg& msg) {
+  WriteSample(*impl_, Topic::kRange, ToIdl(msg), msg.agent_id);
+}
 void Node::Write(const protocol::ContributionMsg& msg) {
   WriteSample(*impl_, Topic::kContribution, ToIdl(msg));
 }
@@ -818,6 +888,10 @@ void Node::Wake() { impl_->guard.set_trigger_value(true); }
 bool Node::WaitForAcknowledgments(double seconds) {
   bool all = true;
   for (auto& [topic, writer] : impl_->writers) {
+    if (topic == Topic::kRange && impl_->range_partitions) continue;  // below, every one
+    all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
+  }
+  for (auto& [id, writer] : impl_->range_writers) {
     all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
   }
   return all;
@@ -869,6 +943,10 @@ int Node::MatchedWriters(Topic topic) const {
 }
 
 int Node::MatchedReaders(Topic topic) const {
+  if (topic == Topic::kRange && impl_->range_partitions) {  // the readers of any of them
+    auto listener = impl_->writer_listeners.find(topic);
+    return listener == impl_->writer_listeners.end() ? 0 : static_cast<int>(listener->second->Readers().size());
+  }
   auto it = impl_->writers.find(topic);
   if (it == impl_->writers.end()) return 0;
   fdds::PublicationMatchedStatus status;

@@ -117,7 +117,8 @@ class Node {
   std::set<protocol::SenderKey> MatchedReaderKeys(Topic topic) const;
   // How many writers currently match this node's reader of `topic` (its own included).
   int MatchedWriters(Topic topic) const;
-  // How many readers currently match this node's writer of `topic` (its own included).
+  // How many readers currently match this node's writer of `topic` (its own included); for
+  // ranges, its writers of every agent's ranges together (docs/PROTOCOL.md, "Ranges").
   int MatchedReaders(Topic topic) const;
 
   struct Impl;  // opaque: holds the Fast DDS entities

@@ -95,7 +95,9 @@ void LiveModel::OnRange(const protocol::RangeMsg& msg, const protocol::SenderKey
       !Finite(msg.p_sensor)) {
     return Ignore("an invalid range", now_s);
   }
-  if (!range_writer_ || *range_writer_ != from) {
+  // The target writes each agent's ranges with a writer of its own (docs/PROTOCOL.md,
+  // "Ranges"): a new target is a new participant.
+  if (!range_writer_ || !protocol::SameProcess(*range_writer_, from)) {
     if (range_writer_) {
       ++target_restarts_;
       AddMark(now_s, "target_restart", 0, "the target restarted (a new range writer)");
@@ -194,7 +196,7 @@ void LiveModel::OnLiveliness(WriterKind kind, const protocol::SenderKey& writer,
     SetLive(it->second, alive, now_s);
     Touch(now_s);
   } else if (kind == WriterKind::kRange) {
-    if (range_writer_ && *range_writer_ != writer) return;  // not the current target
+    if (range_writer_ && !protocol::SameProcess(*range_writer_, writer)) return;  // not the current target
     if (alive == target_live_) return;
     target_live_ = alive;
     if (target_seen_ && !alive && newest_step_ >= config_.scenario.steps) {
