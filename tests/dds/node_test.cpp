@@ -2,9 +2,12 @@
 // DDS domain of this test's own (178).
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <functional>
 #include <stdexcept>
+#include <variant>
+#include <vector>
 
 #include "common/config/config.hpp"
 #include "dds/node.hpp"
@@ -43,4 +46,49 @@ TEST_CASE("a removed reader is no longer matched by the peers' writers", "[dds][
   reader.AddReader({Topic::kAgentState, deif::AgentId{2}});
   CHECK(Within(10.0, reader, [&] { return writer.MatchedReaders(Topic::kAgentState) == 1; }));
   CHECK_THROWS_AS(reader.AddReader({Topic::kAgentState, deif::AgentId{3}}), std::logic_error);
+}
+
+TEST_CASE("each agent's reader gets its own ranges; a reader of all ranges gets every one",
+          "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  deif::dds::Node target(config, "node-test-target", "node_ranges");
+  deif::dds::Node agent(config, "node-test-agent-2", "node_ranges");
+  deif::dds::Node observer(config, "node-test-observer", "node_ranges");
+  target.AddWriter(Topic::kRange);
+  agent.AddReader({Topic::kRange, deif::AgentId{2}});
+  observer.AddReader({Topic::kRange, {}});
+  target.StartLiveliness();
+  // The target's writers of agents 1..3 all match the observer; only agent 2's the agent.
+  REQUIRE(Within(10.0, agent, [&] {
+    return agent.MatchedWriters(Topic::kRange) >= 1 && observer.MatchedWriters(Topic::kRange) >= 3 &&
+           target.MatchedReaders(Topic::kRange) >= 2;
+  }));
+  CHECK(agent.MatchedWriters(Topic::kRange) == 1);
+  CHECK(observer.MatchedWriters(Topic::kRange) == 3);
+  CHECK(target.MatchedReaders(Topic::kRange) == 2);  // the agent's and the observer's
+  for (deif::AgentId id = 1; id <= 3; ++id) {
+    deif::protocol::RangeMsg range;
+    range.run = deif::protocol::RunTokenOf("node_ranges");
+    range.agent_id = id;
+    range.step = 1;
+    target.Write(range);
+  }
+  std::vector<deif::AgentId> agent_got, observer_got;
+  const auto take = [](deif::dds::Node& node, std::vector<deif::AgentId>& got) {
+    for (const auto& event : node.Wait(Clock::now() + std::chrono::milliseconds(20))) {
+      if (const auto* r = std::get_if<deif::dds::Received<deif::protocol::RangeMsg>>(&event)) {
+        got.push_back(r->msg.agent_id);
+      }
+    }
+  };
+  REQUIRE(Within(10.0, agent, [&] {
+    take(agent, agent_got);
+    take(observer, observer_got);
+    return observer_got.size() >= 3 && !agent_got.empty();
+  }));
+  take(agent, agent_got);  // nothing more comes for it
+  CHECK(agent_got == std::vector<deif::AgentId>{2});
+  std::sort(observer_got.begin(), observer_got.end());
+  CHECK(observer_got == std::vector<deif::AgentId>{1, 2, 3});
 }

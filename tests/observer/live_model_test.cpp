@@ -211,5 +211,26 @@ TEST_CASE("live model: a later step's truth read before a step's ranges does not
   CHECK(b.pcrlb_m == a.pcrlb_m);
 }
 
+TEST_CASE("live model: the target's writers of different agents' ranges are one target") {
+  // GIVEN ranges of step 1 for agents 1..3, each from another writer of one participant
+  // (the target writes each agent's ranges with a writer of their own, docs/PROTOCOL.md)
+  LiveModel model(ThreeAgents(), kRun, "r");
+  const auto target_writer = [](int participant, int agent) {
+    protocol::SenderKey key = Writer(participant);  // the first 12 bytes: the participant
+    key[15] = static_cast<std::uint8_t>(agent);     // the last 4: the writer in it
+    return key;
+  };
+  for (AgentId id = 1; id <= 3; ++id) model.OnRange(Range(1, id), target_writer(20, id), 0.1);
+  // THEN no target restart is seen
+  CHECK(CountMarks(model, "target_restart", 0) == 0);
+  // WHEN two of those writers lose liveliness, the target is lost, once
+  model.OnLiveliness(WriterKind::kRange, target_writer(20, 2), false, 0.2);
+  model.OnLiveliness(WriterKind::kRange, target_writer(20, 3), false, 0.2);
+  CHECK(CountMarks(model, "target_lost", 0) == 1);
+  // WHEN another participant writes ranges, that is a new target
+  model.OnRange(Range(2, 1), target_writer(21, 1), 0.3);
+  CHECK(CountMarks(model, "target_restart", 0) == 1);
+}
+
 }  // namespace
 }  // namespace deif::observer
