@@ -515,8 +515,9 @@ struct Node::Impl {
   std::map<Topic, fdds::Topic*> topics;
   std::vector<fdds::ContentFilteredTopic*> filtered;
   std::map<Topic, fdds::DataWriter*> writers;
-  // Ranges in a partition per agent (RangePartitions): the writer for each agent id, made
-  // when the first range for it is written; writers[kRange] is the one for agent 1.
+  // Ranges in a partition per agent (docs/PROTOCOL.md, "Ranges"): the writer of each agent
+  // id's ranges, made for 1..agents.count with the writer of ranges, and for any other id at
+  // its first range; writers[kRange] is agent 1's.
   bool range_partitions = false;
   std::map<AgentId, fdds::DataWriter*> range_writers;
   std::map<Topic, fdds::DataReader*> readers;
@@ -618,6 +619,8 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
     publisher_qos.partition().push_back(published.c_str());
     subscriber_qos.partition().push_back(subscribed.c_str());
   }
+  // Not with security: the target's permissions grant it one partition, and with a writer
+  // per agent a secure start of 16 agents stalled more often (docs/SECURITY.md).
   d.range_partitions = !ros2 && !d.secure;
   d.publisher = d.participant->create_publisher(publisher_qos);
   d.subscriber = d.participant->create_subscriber(subscriber_qos);
@@ -647,7 +650,7 @@ Node::~Node() {
 
 namespace {
 
-// The partition of the ranges for agent `id` (RangePartitions).
+// The partition of the ranges for agent `id` (docs/PROTOCOL.md, "Ranges").
 std::string RangePartition(const std::string& run_name, AgentId id) {
   return "deif." + run_name + ".range." + std::to_string(id);
 }
@@ -667,7 +670,8 @@ fdds::DataWriter* RangeWriterFor(Node::Impl& d, AgentId id) {
                                                           d.writer_listeners.at(Topic::kRange).get(),
                                                           fdds::StatusMask::publication_matched());
   if (writer == nullptr) {
-    throw std::runtime_error("cannot create the writer of ranges for agent " + std::to_string(id));
+    throw std::runtime_error("cannot create the writer of ranges for agent " + std::to_string(id) +
+                             " in partition " + own_partition);
   }
   d.range_writers[id] = writer;
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
