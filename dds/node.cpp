@@ -516,8 +516,8 @@ struct Node::Impl {
   std::vector<fdds::ContentFilteredTopic*> filtered;
   std::map<Topic, fdds::DataWriter*> writers;
   // Ranges in a partition per agent (docs/PROTOCOL.md, "Ranges"): the writer of each agent
-  // id's ranges, made for 1..agents.count with the writer of ranges, and for any other id at
-  // its first range; writers[kRange] is agent 1's.
+  // id's ranges, made for 1..agents.count with the writer of ranges (and 0: the one of any
+  // other id, made at its first range); writers[kRange] is agent 1's.
   bool range_partitions = false;
   std::map<AgentId, fdds::DataWriter*> range_writers;
   std::map<Topic, fdds::DataReader*> readers;
@@ -655,14 +655,18 @@ std::string RangePartition(const std::string& run_name, AgentId id) {
   return "deif." + run_name + ".range." + std::to_string(id);
 }
 
+// The writer of agent `id`'s ranges. Ids outside 1..agents.count (no agent reads them;
+// only a test tool writes them) share one writer in the run's partition alone, so that no
+// id makes a new writer.
 fdds::DataWriter* RangeWriterFor(Node::Impl& d, AgentId id) {
+  if (id < 1 || id > static_cast<AgentId>(d.config.agents.count)) id = 0;
   auto it = d.range_writers.find(id);
   if (it != d.range_writers.end()) return it->second;
   fdds::PublisherQos qos = fdds::PUBLISHER_QOS_DEFAULT;
   const std::string run_partition = "deif." + d.run_name;
-  const std::string own_partition = RangePartition(d.run_name, id);
+  const std::string own_partition = id == 0 ? run_partition : RangePartition(d.run_name, id);
   qos.partition().push_back(run_partition.c_str());  // what every reader of all ranges joins
-  qos.partition().push_back(own_partition.c_str());  // what agent `id` joins
+  if (id != 0) qos.partition().push_back(own_partition.c_str());  // what agent `id` joins
   fdds::Publisher* publisher = d.participant->create_publisher(qos);
   fdds::DataWriter* writer =
       publisher == nullptr ? nullptr
