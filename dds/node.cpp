@@ -69,8 +69,9 @@ struct TopicQos {
 TopicQos QosOf(Topic topic, const NetworkConfig& network) {
   const int history = network.history_steps;
   switch (topic) {
-    case Topic::kTruth:  // observers only; a late joiner needs no old truth
-      return {fdds::VOLATILE_DURABILITY_QOS, 8, 8, false};
+    case Topic::kTruth:  // observers only; a late joiner needs no old truth, but an observer
+                         // that lags a fast lock-step by up to the history keeps every step
+      return {fdds::VOLATILE_DURABILITY_QOS, 8, std::max(8, history), false};
     case Topic::kRange:  // the roll calls a frozen or cut-off agent missed, up to the history
       return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, true};
     case Topic::kContribution:  // what a late or cut-off peer missed, up to the history
@@ -620,8 +621,10 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
     subscriber_qos.partition().push_back(subscribed.c_str());
   }
   // Not with security: the target's permissions grant it one partition, and with a writer
-  // per agent a secure start of 16 agents stalled more often (docs/SECURITY.md).
-  d.range_partitions = !ros2 && !d.secure;
+  // per agent a secure start of 16 agents stalled more often (docs/SECURITY.md). Not with a
+  // Discovery Server: there one agent's reader now and then never matched its writer of
+  // ranges (2 runs of 5 of mp_discovery_server; docs/PROTOCOL.md, "Ranges").
+  d.range_partitions = !ros2 && !d.secure && config.network.discovery == DiscoveryKind::kSimple;
   d.publisher = d.participant->create_publisher(publisher_qos);
   d.subscriber = d.participant->create_subscriber(subscriber_qos);
   if (d.publisher == nullptr || d.subscriber == nullptr) {
