@@ -23,6 +23,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "bench/bench_sample.hpp"
 #include "common/config/config.hpp"
 #include "dds/node.hpp"
 
@@ -48,12 +49,7 @@ double CpuSeconds() {
 }
 
 deif::protocol::ContributionMsg Message(deif::AgentId id, long long round, const deif::Config& config) {
-  deif::protocol::ContributionMsg m;
-  m.run = deif::protocol::RunTokenOf("alltoall");
-  m.agent_id = id;
-  m.step = round;
-  m.basis = deif::ToInfoState(deif::InitialState(config), deif::InitialCovariance(config));
-  return m;
+  return deif::bench::Contribution("alltoall", id, round, config);
 }
 
 int Run(const Options& opt) {

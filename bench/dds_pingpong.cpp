@@ -16,6 +16,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "bench/bench_sample.hpp"
 #include "common/config/config.hpp"
 #include "dds/node.hpp"
 
@@ -33,12 +34,7 @@ struct Options {
 };
 
 deif::protocol::ContributionMsg Message(deif::AgentId id, long long step, const deif::Config& config) {
-  deif::protocol::ContributionMsg m;
-  m.run = deif::protocol::RunTokenOf("pingpong");
-  m.agent_id = id;
-  m.step = step;
-  m.basis = deif::ToInfoState(deif::InitialState(config), deif::InitialCovariance(config));
-  return m;
+  return deif::bench::Contribution("pingpong", id, step, config);
 }
 
 double Percentile(std::vector<double> v, double p) {
