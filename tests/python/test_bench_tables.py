@@ -204,3 +204,17 @@ def test_security_table_with_protection_levels_from_made_up_figures():
     assert "(--submessages none) | 400 | 2.00 | 4.50 | - | 1/1 |" in table
     assert "(measurement only) | - | - | - | - | 0/1 |" in table
     assert "**not met**" in table
+
+
+def test_alltoall_table_sets_the_lockstep_beside_its_floor():
+    res = {"alltoall": {"4": {"n": 4, "runs_ok": 3, "runs": 3, "rounds_per_s": 4000.0,
+                              "cpu_ms_per_round": 0.5, "cpu_us_per_delivery": 41.7, "errors": []},
+                        "64": {"n": 64, "runs_ok": 0, "runs": 1, "rounds_per_s": None,
+                               "cpu_ms_per_round": None, "cpu_us_per_delivery": None,
+                               "errors": ["exit -6: made up"]}},
+           "lockstep": {"4": {"steps_per_s": 1000.0}}}
+    table = bench.make_table(res)
+    assert "**All-to-all floor" in table
+    # the lock-step runs at a quarter of the bare exchange
+    assert "| 4 | 4000.0 | 0.50 | 42 | 1000.0 | 0.25 | 3/3 |" in table
+    assert "| 64 | - | - | - | - | - | 0/1 |" in table
