@@ -521,6 +521,7 @@ struct Node::Impl {
   // other id, made at its first range); writers[kRange] is agent 1's.
   bool range_partitions = false;
   std::map<AgentId, fdds::DataWriter*> range_writers;
+  std::vector<std::pair<Topic, fdds::DataWriter*>> every_writer;  // the range writers included
   std::map<Topic, fdds::DataReader*> readers;
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   std::map<Topic, std::unique_ptr<MatchListener>> writer_listeners;
@@ -681,6 +682,7 @@ fdds::DataWriter* RangeWriterFor(Node::Impl& d, AgentId id) {
                              " in partition " + own_partition);
   }
   d.range_writers[id] = writer;
+  d.every_writer.emplace_back(Topic::kRange, writer);
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
   {
     // A new writer asserts like the others (StartLiveliness), from its first period on.
@@ -717,6 +719,7 @@ void Node::AddWriter(Topic topic) {
     throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
   }
   d.writers[topic] = writer;
+  d.every_writer.emplace_back(topic, writer);
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
 }
 
@@ -809,11 +812,9 @@ void Node::StartLiveliness() {
       EffectiveTimings(d.config).liveliness_lease_s / EffectiveTimings(d.config).assertions_per_lease));
   {
     std::lock_guard<std::mutex> lock(d.assert_mutex);
-    for (auto& [topic, writer] : d.writers) {
-      if (topic == Topic::kRange && d.range_partitions) continue;  // below, every one
+    for (auto& [topic, writer] : d.every_writer) {
       if (QosOf(topic, d.config.network).manual_liveliness) d.asserted.push_back(writer);
     }
-    for (auto& [id, writer] : d.range_writers) d.asserted.push_back(writer);
     for (fdds::DataWriter* writer : d.asserted) d.last_write[writer] = Clock::now() - period;
     // A write renews a writer's liveliness, so only writers idle for a period assert: in a
     // busy network every assertion is a message to every matched reader.
@@ -898,11 +899,7 @@ void Node::Wake() { impl_->guard.set_trigger_value(true); }
 
 bool Node::WaitForAcknowledgments(double seconds) {
   bool all = true;
-  for (auto& [topic, writer] : impl_->writers) {
-    if (topic == Topic::kRange && impl_->range_partitions) continue;  // below, every one
-    all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
-  }
-  for (auto& [id, writer] : impl_->range_writers) {
+  for (auto& [topic, writer] : impl_->every_writer) {
     all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
   }
   return all;
