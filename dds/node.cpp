@@ -12,6 +12,7 @@
 #include <map>
 #include <mutex>
 #include <random>
+#include <regex>
 #include <set>
 #include <stdexcept>
 #include <thread>
@@ -40,6 +41,7 @@
 #include <fastrtps/utils/IPLocator.h>
 
 #include "dds/conversions.hpp"
+#include "dds/locked_key.hpp"
 #include "dds/security.hpp"
 #include "deifPubSubTypes.h"
 
@@ -164,12 +166,17 @@ fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
 }
 
 // DEIF_DDS_LOG=warning (or info) shows Fast DDS's own log on stderr; errors only otherwise.
+// DEIF_DDS_LOG_CATEGORIES=REGEX keeps the categories it matches, e.g. '^(?!SECURITY_CRYPTO)'
+// (docs/FASTDDS_NOTES.md, "Key hashes").
 void EnableDdsLog() {
   const char* level = std::getenv("DEIF_DDS_LOG");
   if (level == nullptr) return;
   const std::string l(level);
   if (l == "warning") fdds::Log::SetVerbosity(fdds::Log::Warning);
   if (l == "info") fdds::Log::SetVerbosity(fdds::Log::Info);
+  if (const char* categories = std::getenv("DEIF_DDS_LOG_CATEGORIES")) {
+    fdds::Log::SetCategoryFilter(std::regex(categories));
+  }
 }
 
 // A participant id whose shared-memory ports (/dev/shm/fastrtps_port<port>, the unicast
@@ -594,10 +601,10 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
   for (Topic topic : kAllTopics) {
     fdds::TypeSupport support;
     switch (topic) {
-      case Topic::kTruth: support.reset(new deif_msgs::TruthPubSubType()); break;
-      case Topic::kRange: support.reset(new deif_msgs::RangePubSubType()); break;
-      case Topic::kContribution: support.reset(new deif_msgs::ContributionPubSubType()); break;
-      case Topic::kAgentState: support.reset(new deif_msgs::AgentStatePubSubType()); break;
+      case Topic::kTruth: support.reset(new LockedKey<deif_msgs::TruthPubSubType>()); break;
+      case Topic::kRange: support.reset(new LockedKey<deif_msgs::RangePubSubType>()); break;
+      case Topic::kContribution: support.reset(new LockedKey<deif_msgs::ContributionPubSubType>()); break;
+      case Topic::kAgentState: support.reset(new LockedKey<deif_msgs::AgentStatePubSubType>()); break;
     }
     const TopicNames names = NamesOf(topic);
     if (ros2) support->setName(names.ros2_type);
