@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <iterator>
 #include <limits>
 
@@ -22,6 +23,12 @@ std::string Join(const std::vector<AgentId>& ids) {
   std::string out;
   for (AgentId id : ids) out += (out.empty() ? "" : " ") + std::to_string(id);
   return out;
+}
+
+std::string FormatSeconds(double s) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.3f", s);
+  return buffer;
 }
 
 }  // namespace
@@ -501,7 +508,6 @@ bool AgentProtocol::CanFinish(const Record& r, double now_s) const {
 }
 
 void AgentProtocol::FinishStep(double now_s) {
-  (void)now_s;
   Record& r = records_.rbegin()->second;
   if (r.awaiting_basis) {
     bool peers = false;
@@ -613,8 +619,9 @@ void AgentProtocol::FinishStep(double now_s) {
     }
     LogOnce(LogLevel::kWarn, "incomplete",
             "step " + std::to_string(r.step) + ": fused without every member of the roll call "
-            "(missing: " + Join(missing) + "); late contributions are fused into their step "
-            "(logged once)");
+            "(missing: " + Join(missing) + ") after " + FormatSeconds(now_s - r.start_s) +
+            " s (" + (now_s >= r.deadline_s ? "its deadline" : "a member was lost in the step") +
+            "); late contributions are fused into their step (logged once)");
   }
 
   r.written = true;

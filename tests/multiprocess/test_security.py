@@ -58,7 +58,8 @@ def hostile_argv(lau, attack, *extra):
 # memory twice stopped hearing each other for good, likely a Fast DDS deadlock when a peer
 # is removed (docs/SECURITY.md, "Known limits"; not seen over UDPv4 in these tests).
 # Failure detection and the transport are not what these tests are about.
-STALL_PROOF = ["network.liveliness_lease_s=3.0", "network.transport=udp"]
+LONG_LEASE = "network.liveliness_lease_s=3.0"
+STALL_PROOF = [LONG_LEASE, "network.transport=udp"]
 
 
 def stop_run(lau, wait_s=30.0):
@@ -116,6 +117,12 @@ def with_hostiles(work, domain, hostiles, at_step=30, after_steps=100, live=Fals
         rest, err = p.communicate(timeout=60)
         results.append((p.returncode, out + rest, err))
     return res, results, done_at
+
+
+def warnings(res, j):
+    """Agent j's warnings and errors: why a step was fused without a member."""
+    with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+        return [line.strip() for line in f if "[warning]" in line or "[error]" in line][:10]
 
 
 def received(out):
@@ -216,7 +223,8 @@ def test_claimed_id(work, domain):
         steps = steps_of(res.out_dir, j)
         assert steps == list(range(1, len(steps) + 1)), f"agent {j} skipped a step"
         assert steps[-1] > done_at, (j, steps[-1], done_at)
-        assert all(r["complete"] == "1" for r in rows(res.out_dir, j)), f"agent {j}"
+        incomplete = [r["step"] for r in rows(res.out_dir, j) if r["complete"] != "1"]
+        assert not incomplete, (j, incomplete, warnings(res, j))
     assert res.summary["metrics"]["agreement_fraction"] == 1.0
     worst, replayed = central_difference(res, work)
     assert replayed > done_at
@@ -443,14 +451,17 @@ def test_sixteen_agents(work, domain):
     """A secure lock-step run of 16 agents starts with all of them and every agent fuses all
     16 at every step. Started all at once, such runs stalled in Fast DDS's handshakes and
     began with 3 or 4 agents (docs/SECURITY.md, "Start-up"): the launcher starts each agent
-    once the previous one's log says it is up."""
+    once the previous one's log says it is up. With the security tests' 3 s lease: on a busy
+    2-core machine a secure agent starved for more than the default 0.4 s lease is taken for
+    lost and a step is fused without it (docs/SECURITY.md, "Known limits")."""
     res = launcher.run(SLOW_CIRCLE, os.path.join(work, "run"), agents=16, steps=40, domain=domain,
-                       progress=False, secure=True)
+                       progress=False, secure=True, overrides=[LONG_LEASE])
     assert res.ok, res.summary["processes"]
     assert res.summary["metrics"]["final_agents"] == 16
     for j in range(1, 17):
         assert steps_of(res.out_dir, j) == list(range(1, 41)), j
-        assert all(r["fused"] == "16" for r in rows(res.out_dir, j)), j
+        short = [r["step"] for r in rows(res.out_dir, j) if r["fused"] != "16"]
+        assert not short, (j, short, warnings(res, j))
     started = {p["name"]: p["started_unix_s"] for p in res.summary["processes"]}
     for j in range(1, 16):
         up = up_time(os.path.join(res.out_dir, "logs", f"agent-{j}.log"))
