@@ -7,6 +7,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <map>
@@ -175,7 +176,11 @@ void EnableDdsLog() {
   if (l == "warning") fdds::Log::SetVerbosity(fdds::Log::Warning);
   if (l == "info") fdds::Log::SetVerbosity(fdds::Log::Info);
   if (const char* categories = std::getenv("DEIF_DDS_LOG_CATEGORIES")) {
-    fdds::Log::SetCategoryFilter(std::regex(categories));
+    try {
+      fdds::Log::SetCategoryFilter(std::regex(categories));
+    } catch (const std::regex_error& e) {
+      std::fprintf(stderr, "DEIF_DDS_LOG_CATEGORIES: not a regular expression (%s); not filtered\n", e.what());
+    }
   }
 }
 
