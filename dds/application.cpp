@@ -5,10 +5,10 @@
 
 #include <atomic>
 #include <chrono>
-#include <memory>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <mutex>
 #include <thread>
 
