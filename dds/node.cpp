@@ -538,6 +538,7 @@ struct Node::Impl {
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   std::map<Topic, std::unique_ptr<MatchListener>> writer_listeners;
   std::set<protocol::SenderKey> own_writers;
+  std::map<Topic, std::string> writer_sub_partitions, reader_sub_partitions;  // SetSubPartitions
   bool passive = false;  // MakePassive(): no writer, ever
   bool secure = false;   // network.security.enabled
   SecureListener secure_listener;  // the participant's listener when secure
@@ -725,7 +726,15 @@ void Node::AddWriter(Topic topic) {
     d.writers[topic] = d.range_writers.at(1);
     return;
   }
-  fdds::DataWriter* writer = d.publisher->create_datawriter(
+  fdds::Publisher* publisher = d.publisher;
+  if (auto sub = d.writer_sub_partitions.find(topic); sub != d.writer_sub_partitions.end()) {
+    fdds::PublisherQos qos = fdds::PUBLISHER_QOS_DEFAULT;
+    const std::string partition = "deif." + d.run_name + "." + sub->second;
+    qos.partition().push_back(partition.c_str());
+    publisher = d.participant->create_publisher(qos);
+    if (publisher == nullptr) throw std::runtime_error("cannot create the publisher of " + partition);
+  }
+  fdds::DataWriter* writer = publisher->create_datawriter(
       d.topics.at(topic), WriterQos(topic, d.config), matches, fdds::StatusMask::publication_matched());
   if (writer == nullptr) {
     throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
@@ -733,6 +742,15 @@ void Node::AddWriter(Topic topic) {
   d.writers[topic] = writer;
   d.every_writer.emplace_back(topic, writer);
   d.own_writers.insert(ToKey(writer->get_instance_handle()));
+}
+
+void Node::SetSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix) {
+  Impl& d = *impl_;
+  if (d.secure || d.config.network.ros2_naming) {
+    throw std::logic_error("sub-partitions are for plain runs with partitions only");
+  }
+  d.writer_sub_partitions[topic] = writer_suffix;
+  d.reader_sub_partitions[topic] = reader_suffix;
 }
 
 void Node::MakePassive() {
@@ -781,6 +799,12 @@ void Node::AddReader(const ReaderSpec& spec) {
     // samples the filter would drop. The filter stays, against anyone else's writer there.
     fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
     const std::string partition = RangePartition(d.run_name, *spec.only_id);
+    qos.partition().push_back(partition.c_str());
+    subscriber = d.participant->create_subscriber(qos);
+    if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+  } else if (auto sub = d.reader_sub_partitions.find(topic); sub != d.reader_sub_partitions.end()) {
+    fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
+    const std::string partition = "deif." + d.run_name + "." + sub->second;
     qos.partition().push_back(partition.c_str());
     subscriber = d.participant->create_subscriber(qos);
     if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);

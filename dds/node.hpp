@@ -62,6 +62,14 @@ class Node {
 
   void AddWriter(Topic topic);
   void AddReader(const ReaderSpec& spec);
+  // The writer and reader of `topic` made after this call join the partition
+  // deif.<run>.<suffix> instead of the run's, so they match only endpoints of that
+  // sub-partition (a group of the relayed exchange measured by bench/dds_alltoall.cpp).
+  // Plain runs only: throws std::logic_error with security or network.ros2_naming.
+  void SetSubPartition(Topic topic, const std::string& suffix) { SetSubPartitions(topic, suffix, suffix); }
+  // The same, with the writer in deif.<run>.<writer_suffix> and the reader in
+  // deif.<run>.<reader_suffix> (the tree exchange of bench/dds_alltoall.cpp).
+  void SetSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
   // Deletes this node's reader of `topic` (and its content filter), if it has one: the
   // peers' writers stop matching it. From the thread that calls Wait(), never during it.
   void RemoveReader(Topic topic);

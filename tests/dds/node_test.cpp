@@ -93,3 +93,56 @@ TEST_CASE("each agent's reader gets its own ranges; a reader of all ranges gets 
   std::sort(observer_got.begin(), observer_got.end());
   CHECK(observer_got == std::vector<deif::AgentId>{1, 2, 3, 7});
 }
+
+TEST_CASE("endpoints in different sub-partitions do not match; in the same one they do", "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  // One writer into sub-partition "a"; a reader of "a", a reader of "b", and a reader in
+  // the run's own partition: only the first may match (the tree exchange's up and down
+  // links, docs/SCALING.md).
+  deif::dds::Node writer(config, "node-test-sub-writer", "node_sub");
+  deif::dds::Node in_a(config, "node-test-sub-a", "node_sub");
+  deif::dds::Node in_b(config, "node-test-sub-b", "node_sub");
+  deif::dds::Node plain(config, "node-test-sub-plain", "node_sub");
+  writer.SetSubPartitions(Topic::kContribution, "a", "unused");
+  writer.AddWriter(Topic::kContribution);
+  in_a.SetSubPartition(Topic::kContribution, "a");
+  in_a.AddReader({Topic::kContribution, {}});
+  in_b.SetSubPartitions(Topic::kContribution, "unused", "b");
+  in_b.AddReader({Topic::kContribution, {}});
+  plain.AddReader({Topic::kContribution, {}});
+  writer.StartLiveliness();
+
+  REQUIRE(Within(10.0, in_a, [&] { return in_a.MatchedWriters(Topic::kContribution) == 1; }));
+  CHECK(writer.MatchedReaders(Topic::kContribution) == 1);
+  // Give the other two the time a match takes, then check that none came.
+  Within(1.0, in_b, [] { return false; });
+  CHECK(in_b.MatchedWriters(Topic::kContribution) == 0);
+  CHECK(plain.MatchedWriters(Topic::kContribution) == 0);
+  CHECK(writer.MatchedReaders(Topic::kContribution) == 1);
+
+  deif::protocol::ContributionMsg msg;
+  msg.run = deif::protocol::RunTokenOf("node_sub");
+  msg.agent_id = 1;
+  msg.step = 1;
+  writer.Write(msg);
+  bool got = false;
+  CHECK(Within(10.0, in_a, [&] {
+    for (const auto& event : in_a.Wait(Clock::now() + std::chrono::milliseconds(20))) {
+      got = got || std::holds_alternative<deif::dds::Received<deif::protocol::ContributionMsg>>(event);
+    }
+    return got;
+  }));
+  for (auto* other : {&in_b, &plain}) {
+    for (const auto& event : other->Wait(Clock::now() + std::chrono::milliseconds(200))) {
+      CHECK_FALSE(std::holds_alternative<deif::dds::Received<deif::protocol::ContributionMsg>>(event));
+    }
+  }
+}
+
+TEST_CASE("sub-partitions are refused with security or ROS 2 naming", "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp, ros2_naming: true}\n", "node_test");
+  deif::dds::Node node(config, "node-test-sub-ros2", "node_sub_ros2");
+  CHECK_THROWS_AS(node.SetSubPartition(Topic::kContribution, "a"), std::logic_error);
+}
