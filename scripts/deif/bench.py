@@ -250,14 +250,54 @@ def alltoall_rounds(n, quick):
     return rounds // 3 if quick else rounds
 
 
-def run_alltoall(exe, n, rounds, domain, timeout_s):
+def exchange_rounds(n, mode, quick):
+    """Rounds of a relayed or tree exchange: a few seconds at every N (docs/SCALING.md)."""
+    rounds = alltoall_rounds(n, False) * 2 if mode == "relay" else (3000 if n <= 16 else 600)
+    return rounds // 3 if quick else rounds
+
+
+def summarize_runs(runs, **keys):
+    """The medians of dds_alltoall runs of one kind (run_alltoall), with their errors."""
+    ok = [r for r in runs if "error" not in r]
+    out = dict(keys)
+    out.update({"runs_ok": len(ok), "runs": len(runs),
+                "rounds_per_s": median([r["rounds_per_s"] for r in ok]) if ok else None,
+                "cpu_ms_per_round": median([r["cpu_ms_per_round"] for r in ok]) if ok else None,
+                "cpu_us_per_delivery": median([r["cpu_us_per_delivery"] for r in ok]) if ok else None,
+                "deliveries_per_round": ok[0]["deliveries_per_round"] if ok else None,
+                "errors": [r["error"] for r in runs if "error" in r]})
+    return out
+
+
+def exchanges(n):
+    """The exchanges measured beside the all-to-all floor at N (docs/SCALING.md): relay
+    groups of about sqrt(N) ids, and a tree of fan-out 4. (mode, size) pairs."""
+    return [("relay", max(2, round(math.sqrt(n)))), ("tree", 4)]
+
+
+def deliveries(n, mode="all", size=0):
+    """Sample deliveries of one round of an exchange (bench/dds_alltoall.cpp): all to all
+    N (N - 1); relay groups of S: N (S - 1) within the groups plus G (N - 1) for the G
+    groups' relayed samples; a tree: one up and one down per edge, 2 (N - 1)."""
+    if mode == "relay":
+        groups = -(-n // size)
+        members = [min(n, (g + 1) * size) - g * size for g in range(groups)]
+        return sum(m * (m - 1) for m in members) + groups * (n - 1)
+    if mode == "tree":
+        return 2 * (n - 1)
+    return n * (n - 1)
+
+
+def run_alltoall(exe, n, rounds, domain, timeout_s, mode="all", size=0):
     """N dds_alltoall processes on one domain (docs/BENCHMARKS.md, "The floor"): the rate of
-    rounds in which every process hears every other once, and the CPU of all of them per
-    round."""
+    rounds in which every process hears every other once (directly, or through a relay or
+    a tree with mode "relay"/"tree" of group size or fan-out `size`), and the CPU of all of
+    them per round."""
     before = launcher.shm_snapshot()
     warmup = max(5, rounds // 10)
+    extra = {"relay": ["--relay-group", str(size)], "tree": ["--tree", str(size)]}.get(mode, [])
     argv = lambda j: [exe, "--id", str(j), "--peers", str(n), "--rounds", str(rounds),  # noqa: E731
-                      "--warmup", str(warmup), "--domain", str(domain), "--timeout", str(timeout_s)]
+                      "--warmup", str(warmup), "--domain", str(domain), "--timeout", str(timeout_s)] + extra
     procs = [subprocess.Popen(argv(j), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for j in range(1, n + 1)]
     outs = []
@@ -280,13 +320,16 @@ def run_alltoall(exe, n, rounds, domain, timeout_s):
         try:
             figs.append(json.loads(out.strip().splitlines()[-1]))
         except (ValueError, IndexError):
-            return {"n": n, "rounds": rounds, "error": f"exit {code}: {err.strip()[-300:]}"}
+            return {"n": n, "mode": mode, "size": size, "rounds": rounds,
+                    "error": f"exit {code}: {err.strip()[-300:]}"}
     cpu = sum(f["cpu_s"] for f in figs)
-    return {"n": n, "rounds": rounds, "rounds_per_s": median([f["rounds_per_s"] for f in figs]),
+    d = deliveries(n, mode, size)
+    return {"n": n, "mode": mode, "size": size, "rounds": rounds,
+            "rounds_per_s": median([f["rounds_per_s"] for f in figs]),
             "slowest_rounds_per_s": min(f["rounds_per_s"] for f in figs),
             "cpu_ms_per_round": cpu * 1000.0 / rounds,
-            "deliveries_per_round": n * (n - 1),
-            "cpu_us_per_delivery": cpu * 1e6 / rounds / (n * (n - 1))}
+            "deliveries_per_round": d,
+            "cpu_us_per_delivery": cpu * 1e6 / rounds / d}
 
 
 # ---------------------------------------------------------------------------------------
@@ -704,6 +747,22 @@ def make_table(res):
                          f"{fmt(f.get('cpu_us_per_delivery'), '.0f')} | {fmt(lk, '.1f')} | {fmt(ratio, '.2f')} | "
                          f"{f['runs_ok']}/{f['runs']} |")
         lines.append("")
+    if res.get("exchanges"):
+        lines.append("**Exchanges that scale (dds_alltoall --relay-group S / --tree F: every process hears of "
+                     "every other once a round, through a relay or a tree; docs/SCALING.md)**")
+        lines.append("")
+        lines.append("| N | exchange | deliveries per round | rounds/s | / all-to-all, same invocation "
+                     "| CPU per round, all processes [ms] | CPU per delivery [us] | runs |")
+        lines.append("| --- | --- | --- | --- | --- | --- | --- | --- |")
+        for f in sorted(res["exchanges"], key=lambda e: (e["n"], e["mode"], e["size"])):
+            a2a = ((res.get("alltoall") or {}).get(str(f["n"])) or {}).get("rounds_per_s")
+            ratio = f["rounds_per_s"] / a2a if a2a and f.get("rounds_per_s") else None
+            name = f"relay groups of {f['size']}" if f["mode"] == "relay" else f"tree, fan-out {f['size']}"
+            lines.append(f"| {f['n']} | {name} | {fmt(f.get('deliveries_per_round'), 'd')} | "
+                         f"{fmt(f.get('rounds_per_s'), '.1f')} | {fmt(ratio, '.1f')} | "
+                         f"{fmt(f.get('cpu_ms_per_round'), '.2f')} | {fmt(f.get('cpu_us_per_delivery'), '.0f')} | "
+                         f"{f['runs_ok']}/{f['runs']} |")
+        lines.append("")
     if res.get("lockstep"):
         lines.append("**Lock-step (1 target + N agent processes, this host)**")
         lines.append("")
@@ -894,7 +953,7 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                 log(f"lockstep: no step latency or discovery figures: {why}")
                 res["skipped"]["step_observer"] = why + "; no latency or discovery figures"
         pp = {"shm": [], "udp": []}
-        lock, floor = {}, {}
+        lock, floor, exch = {}, {}, {}
         if pingpong_exe or alltoall_exe or "lockstep" in sections:
             samples = 1000 if quick else 5000
             # The baseline and the lock-step runs side by side: ping-pong, then lock-step.
@@ -908,6 +967,12 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                     log(f"all-to-all N={n}, {rounds} rounds (rep {rep + 1}/{reps})")
                     floor.setdefault(n, []).append(
                         run_alltoall(alltoall_exe, n, rounds, domains.take(), 60.0 if n <= 16 else 150.0))
+                    for mode, size in exchanges(n) if n >= 4 else ():
+                        rounds = exchange_rounds(n, mode, quick)
+                        log(f"{mode} exchange ({size}) N={n}, {rounds} rounds (rep {rep + 1}/{reps})")
+                        exch.setdefault((n, mode, size), []).append(
+                            run_alltoall(alltoall_exe, n, rounds, domains.take(), 60.0 if n <= 16 else 150.0,
+                                         mode, size))
                 if "lockstep" in sections:
                     for n in ns:
                         steps = lockstep_steps(n, quick)
@@ -922,15 +987,11 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                 res["pingpong"] = pp
             if floor:
                 res["alltoall_runs"] = {str(n): v for n, v in floor.items()}
-                res["alltoall"] = {}
-                for n, runs in floor.items():
-                    ok = [r for r in runs if "error" not in r]
-                    res["alltoall"][str(n)] = {
-                        "n": n, "runs_ok": len(ok), "runs": len(runs),
-                        "rounds_per_s": median([r["rounds_per_s"] for r in ok]) if ok else None,
-                        "cpu_ms_per_round": median([r["cpu_ms_per_round"] for r in ok]) if ok else None,
-                        "cpu_us_per_delivery": median([r["cpu_us_per_delivery"] for r in ok]) if ok else None,
-                        "errors": [r["error"] for r in runs if "error" in r]}
+                res["alltoall"] = {str(n): summarize_runs(runs, n=n) for n, runs in floor.items()}
+            if exch:
+                res["exchanges_runs"] = {f"{n} {mode} {size}": v for (n, mode, size), v in exch.items()}
+                res["exchanges"] = [summarize_runs(runs, n=n, mode=mode, size=size)
+                                    for (n, mode, size), runs in sorted(exch.items())]
             if lock:
                 res["lockstep_runs"] = {str(n): v for n, v in lock.items()}
                 res["lockstep"] = {str(n): median_run(v) for n, v in lock.items()}

@@ -218,3 +218,32 @@ def test_alltoall_table_sets_the_lockstep_beside_its_floor():
     # the lock-step runs at a quarter of the bare exchange
     assert "| 4 | 4000.0 | 0.50 | 42 | 1000.0 | 0.25 | 3/3 |" in table
     assert "| 64 | - | - | - | - | - | 0/1 |" in table
+
+
+def test_deliveries_of_each_exchange_count_every_sample_once():
+    assert bench.deliveries(4) == 12
+    # 4 groups of 4: 4 x 12 within the groups, and each group's sample reaches the 15 others
+    assert bench.deliveries(16, "relay", 4) == 48 + 60
+    # groups of 4, 4 and 2: 12 + 12 + 2 within, 3 x 9 relayed
+    assert bench.deliveries(10, "relay", 4) == 26 + 27
+    assert bench.deliveries(64, "tree", 4) == 126
+
+
+def test_exchanges_table_sets_each_exchange_beside_the_all_to_all_of_its_n():
+    res = {"alltoall": {"16": {"n": 16, "runs_ok": 3, "runs": 3, "rounds_per_s": 100.0,
+                               "cpu_ms_per_round": 10.0, "cpu_us_per_delivery": 41.7, "errors": []}},
+           "exchanges": [{"n": 16, "mode": "tree", "size": 4, "runs_ok": 3, "runs": 3, "rounds_per_s": 450.0,
+                          "cpu_ms_per_round": 1.5, "cpu_us_per_delivery": 50.0, "deliveries_per_round": 30,
+                          "errors": []},
+                         {"n": 16, "mode": "relay", "size": 4, "runs_ok": 2, "runs": 3, "rounds_per_s": 160.0,
+                          "cpu_ms_per_round": 4.0, "cpu_us_per_delivery": 37.0, "deliveries_per_round": 108,
+                          "errors": ["exit 1: made up"]},
+                         {"n": 64, "mode": "tree", "size": 4, "runs_ok": 0, "runs": 1, "rounds_per_s": None,
+                          "cpu_ms_per_round": None, "cpu_us_per_delivery": None, "deliveries_per_round": None,
+                          "errors": ["exit 1: made up"]}]}
+    table = bench.make_table(res)
+    assert "**Exchanges that scale" in table
+    assert "| 16 | relay groups of 4 | 108 | 160.0 | 1.6 | 4.00 | 37 | 2/3 |" in table
+    assert "| 16 | tree, fan-out 4 | 30 | 450.0 | 4.5 | 1.50 | 50 | 3/3 |" in table
+    # no all-to-all at 64 in this invocation: no ratio
+    assert "| 64 | tree, fan-out 4 | - | - | - | - | - | 0/1 |" in table
