@@ -1,9 +1,13 @@
 #include "agent/agent_node.hpp"
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <string>
 #include <type_traits>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -12,12 +16,32 @@ namespace deif::agent {
 namespace {
 
 constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
+constexpr int kMaxRestartsInPlace = 3;  // AgentNode::Deaf
 
-protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
+// The last step of the rows a restarted process appends to (0: none, or unreadable).
+StepIndex LastStepWritten(const dds::ProcessContext& context, AgentId id) {
+  if (!context.options.append || context.options.out_dir.empty()) return 0;
+  const std::filesystem::path csv = std::filesystem::path(context.options.out_dir) / AgentCsvName(id);
+  std::error_code ec;
+  if (!std::filesystem::exists(csv, ec)) return 0;
+  try {
+    const std::vector<AgentRow> rows = ReadAgentCsv(csv.string());
+    StepIndex last = 0;
+    for (const AgentRow& r : rows) last = std::max(last, r.step);
+    return last;
+  } catch (const std::exception& e) {
+    context.log->warn("--append: cannot read the steps of {} ({}); joining as a new agent", csv.string(),
+                      e.what());
+    return 0;
+  }
+}
+
+protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& context, AgentId id,
                                                  std::uint64_t token) {
   protocol::AgentProtocol::Options options;
   options.run = protocol::RunTokenOf(context.run_name);
   options.instance_token = token;
+  options.resume_after = LastStepWritten(context, id);
   return options;
 }
 
@@ -29,7 +53,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       id_(id),
       instance_token_(dds::RandomInstanceToken()),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
-      protocol_(context.config, id, ProtocolOptions(context, instance_token_)) {
+      protocol_(context.config, id, ProtocolOptions(context, id, instance_token_)) {
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
@@ -110,6 +134,7 @@ int AgentNode::Run() {
     protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
+    if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
   }
   protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
   if (stop_requested_) {
@@ -128,6 +153,38 @@ int AgentNode::Run() {
   for (const auto& [reason, count] : c.by_reason) context_.log->info("  {}: {}", reason, count);
   WriteCounters();
   return exit_code_.value_or(protocol::kExitOk);
+}
+
+bool AgentNode::DeafForTest() const {
+  // DEIF_FAULT_DEAF=STEP:ID: from step STEP on, the first process of agent ID acts as if its
+  // receive were stuck, so that tests can run the restart in place on demand (the stuck loop
+  // itself comes from a race inside Fast DDS; docs/RUNNING.md, "Restarting in place").
+  static const long at_step = [this] {
+    const char* value = std::getenv("DEIF_FAULT_DEAF");
+    long step = 0, agent = 0;
+    if (value == nullptr || std::sscanf(value, "%ld:%ld", &step, &agent) != 2) return 0L;
+    return agent == static_cast<long>(id_) ? step : 0L;
+  }();
+  return at_step > 0 && dds::RestartsInPlace() == 0 && protocol_.last_written_step() >= at_step;
+}
+
+int AgentNode::Deaf() {
+  // Fast DDS 2.9.1 cannot recover the port (docs/FASTDDS_NOTES.md, "A receive loop stuck on a
+  // dead writer's segment"); a new participant can. The rows written so far are kept: the
+  // new process appends to them and rejoins as a restarted agent does (docs/PROTOCOL.md).
+  WriteCounters();
+  const int restarts = dds::RestartsInPlace();
+  if (restarts >= kMaxRestartsInPlace) {
+    context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast DDS "
+                        "is stuck on a message of a dead peer, after {} restart(s) in place; giving up "
+                        "after step {}", restarts, protocol_.last_written_step());
+    return protocol::kExitRuntimeError;
+  }
+  context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast DDS is "
+                      "stuck on a message of a dead peer (docs/FASTDDS_NOTES.md); after step {} it "
+                      "starts again in place and rejoins", protocol_.last_written_step());
+  restart_in_place_ = true;
+  return protocol::kExitRuntimeError;  // the exit code only if the restart fails
 }
 
 void AgentNode::ReportMatches(double now_s) {

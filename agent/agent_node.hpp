@@ -22,6 +22,7 @@ class AgentNode : public dds::Application {
   int Run() override;
   void Stop() override;
   bool LeaveQuietly() override;
+  bool RestartInPlace() const override { return restart_in_place_; }
 
  private:
   // Another live process with this id (its state, with another instance token) refuses us.
@@ -32,6 +33,10 @@ class AgentNode : public dds::Application {
   bool Authorised(AgentId claimed, const protocol::SenderKey& writer) const;
   void Execute(std::vector<protocol::AgentAction> actions);
   // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
+  // Ends Run() when this process can no longer hear (Node::ReceiveStuck): restarts it in
+  // place (RestartInPlace), at most kMaxRestartsInPlace times in a process's life.
+  int Deaf();
+  bool DeafForTest() const;
   void ReportMatches(double now_s);
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
   void WriteCounters() const;
@@ -45,6 +50,7 @@ class AgentNode : public dds::Application {
   std::optional<AgentCsv> csv_;
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;
+  bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
 };
 

@@ -1,16 +1,24 @@
 #include "dds/application.hpp"
 
+#include <fcntl.h>
 #include <pthread.h>
 #include <signal.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
+#include <vector>
 
 #include <spdlog/sinks/basic_file_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
@@ -68,12 +76,13 @@ class SignalStopper {
   std::thread thread_;
 };
 
-std::shared_ptr<spdlog::logger> MakeLogger(const std::string& name, const std::string& log_dir) {
+std::shared_ptr<spdlog::logger> MakeLogger(const std::string& name, const std::string& log_dir,
+                                           bool append) {
   std::vector<spdlog::sink_ptr> sinks;
   sinks.push_back(std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
   if (!log_dir.empty()) {
     sinks.push_back(
-        std::make_shared<spdlog::sinks::basic_file_sink_mt>(log_dir + "/" + name + ".log", true));
+        std::make_shared<spdlog::sinks::basic_file_sink_mt>(log_dir + "/" + name + ".log", !append));
   }
   auto logger = std::make_shared<spdlog::logger>(name, sinks.begin(), sinks.end());
   logger->set_pattern("[%Y-%m-%d %H:%M:%S.%e] [%n] [%l] %v");
@@ -142,6 +151,30 @@ void BoundTeardown(int code, std::shared_ptr<spdlog::logger> log) {
   }).detach();
 }
 
+// Execs this program again with the same arguments and --append (docs/RUNNING.md,
+// "Restarting in place"). Every descriptor but stdin, stdout and stderr is closed on exec:
+// Fast DDS's lock files among them, so that its peers find the old ports and segments dead.
+// Returns why it could not.
+std::string ExecAgain(int argc, char** argv) {
+  std::vector<std::string> args(argv, argv + argc);
+  if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
+  std::vector<char*> exec_argv;
+  for (std::string& a : args) exec_argv.push_back(a.data());
+  exec_argv.push_back(nullptr);
+  std::error_code ec;
+  std::vector<int> fds;
+  for (const auto& entry : std::filesystem::directory_iterator("/proc/self/fd", ec)) {
+    const std::string name = entry.path().filename().string();
+    if (AllDigits(name)) fds.push_back(std::atoi(name.c_str()));
+  }
+  for (int fd : fds) {
+    if (fd > 2) ::fcntl(fd, F_SETFD, FD_CLOEXEC);
+  }
+  ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
+  ::execv("/proc/self/exe", exec_argv.data());
+  return std::string("cannot start again in place: ") + std::strerror(errno);
+}
+
 }  // namespace
 
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text) {
@@ -188,6 +221,11 @@ std::string DefaultRunName(const Config& config) {
   std::snprintf(buffer, sizeof buffer, "cfg-%016llx",
                 static_cast<unsigned long long>(protocol::RunTokenOf(ToYaml(config))));
   return buffer;
+}
+
+int RestartsInPlace() {
+  const char* value = std::getenv(kRestartsVariable);
+  return value != nullptr && AllDigits(value) && std::strlen(value) < 4 ? std::atoi(value) : 0;
 }
 
 int RunMain(int argc, char** argv, const ProcessSpec& spec) {
@@ -244,7 +282,7 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
   }
   context.run_name = options.run_name.empty() ? DefaultRunName(context.config) : options.run_name;
 
-  context.log = MakeLogger(spec.logger_name(), options.log_dir);
+  context.log = MakeLogger(spec.logger_name(), options.log_dir, options.append);
   try {
     std::unique_ptr<Application> app = spec.make(context);
     Application* raw = app.get();
@@ -255,6 +293,17 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     });
     const int code = app->Run();
     signals.SetHandler(nullptr);
+    if (app->RestartInPlace()) {
+      app->LeaveQuietly();
+      app.reset();  // its files are written and closed
+      log->flush();
+      spdlog::shutdown();
+      std::fflush(stdout);
+      std::fflush(stderr);
+      const std::string why = ExecAgain(argc, argv);  // returns only when it could not
+      std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
+      std::_Exit(protocol::kExitRuntimeError);
+    }
     if (app->LeaveQuietly()) {
       app.reset();  // its files are closed; its participant is left to the process's end
       log->flush();

@@ -31,6 +31,11 @@ class Application {
   // abandoned (Node::Abandon): the process then ends at once with Run()'s code, without
   // deleting its participant (docs/FASTDDS_NOTES.md, "Leaving at the end of a run").
   virtual bool LeaveQuietly() { return false; }
+  // After Run(): true when the process must start again in place because it can no longer
+  // hear the network (Node::ReceiveStuck): RunMain then leaves the domain as LeaveQuietly
+  // does and execs the same command with --append (the same pid, a new participant), which
+  // rejoins the run like a restarted process (docs/RUNNING.md, "Restarting in place").
+  virtual bool RestartInPlace() const { return false; }
 };
 
 // The options every DDS executable takes.
@@ -72,6 +77,11 @@ struct ProcessSpec {
 // config prints `<program>: error: <file>:<line>: key '<key>': <reason>` and returns 2),
 // runs, and maps exceptions to exit code 1 with one line.
 int RunMain(int argc, char** argv, const ProcessSpec& spec);
+
+// The environment variable that counts a process's restarts in place (RestartInPlace), and
+// their number so far in this process (0 in one started afresh).
+constexpr const char* kRestartsVariable = "DEIF_RESTARTS_IN_PLACE";
+int RestartsInPlace();
 
 // A protocol's log line, at its level, through the process logger.
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);

@@ -114,6 +114,11 @@ class Node {
   // PDP.cpp:1140 when a participant says goodbye while the peer's lease check of it runs;
   // when a whole run ends at once that happened to 4 of 64 agents (docs/FASTDDS_NOTES.md).
   void Abandon();
+  // True once a shared-memory receive thread of this process is stuck for good on a message
+  // of a dead writer whose segment is gone (Fast DDS 2.9.1; docs/FASTDDS_NOTES.md, "A
+  // receive loop stuck on a dead writer's segment"): the process hears nothing more on that
+  // port. A process-wide fact, read from Fast DDS's log; only a new participant hears again.
+  static bool ReceiveStuck();
   // Samples this node's id_range readers dropped (keyed to an id outside the range).
   long DroppedByIdRange() const;
   // Makes this participant's writers send every sample, as another vendor's or a hostile

@@ -145,6 +145,14 @@ int TargetNode::Run() {
     if (!protocol_.started()) protocol_.OnRangeReaders(node_.MatchedReaderKeys(dds::Topic::kRange));
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
+    if (dds::Node::ReceiveStuck() && !deaf_logged_) {
+      // The target keeps its run going for the agents it still reaches; restarting it is
+      // the launcher's (deif-run --restart-target) or the user's (docs/FASTDDS_NOTES.md).
+      context_.log->error("this process hears nothing more over shared memory: a receive thread of "
+                          "Fast DDS is stuck on a message of a dead peer (docs/FASTDDS_NOTES.md); "
+                          "restart the target to recover");
+      deaf_logged_ = true;
+    }
   }
   const double elapsed_s = std::chrono::duration<double>(dds::Clock::now() - started).count();
   context_.log->info("{} at step {} after {:.3f} s; liveliness lapses forgiven {}",

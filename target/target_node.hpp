@@ -45,6 +45,7 @@ class TargetNode : public dds::Application {
   std::optional<TargetCsv> target_csv_;
   std::optional<RangesCsv> ranges_csv_;
   std::atomic<bool> stop_requested_{false};
+  bool deaf_logged_ = false;  // Node::ReceiveStuck logged
   std::optional<int> exit_code_;
   std::mutex control_mutex_;
   std::deque<StepIndex> go_steps_;  // guarded by control_mutex_

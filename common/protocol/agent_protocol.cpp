@@ -49,6 +49,7 @@ AgentProtocol::AgentProtocol(const Config& config, AgentId id, Options options)
                                                   std::to_string(config.agents.count));
   angle_rad_ = InitialAngle(config, id);  // about the initial centre
   position_m_ = PointOnCircle(config.agents.initial_centre_m, config.agents.radius_m, angle_rad_);
+  written_ = options.resume_after;
 }
 
 // ---------------------------------------------------------------------------------------

@@ -89,6 +89,10 @@ class AgentProtocol {
     RunToken run = 1;
     std::uint64_t instance_token = 1;  // random per process start (tells restarts apart)
     double innovation_gate_sigma = 0.0;  // 0: config.filter's value
+    // A restarted process that appends to its rows: the last step they hold. It never opens
+    // a step at or before it, even on a range from the target's history that was measured
+    // for its predecessor where this process starts too (the initial position).
+    StepIndex resume_after = 0;
   };
 
   // The config must outlive the protocol. Throws std::invalid_argument for an id outside

@@ -10,6 +10,8 @@
 #include <vector>
 
 #include "common/config/config.hpp"
+#include <fastdds/dds/log/Log.hpp>
+
 #include "dds/node.hpp"
 
 namespace {
@@ -145,4 +147,36 @@ TEST_CASE("sub-partitions are refused with security or ROS 2 naming", "[dds][nod
       "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp, ros2_naming: true}\n", "node_test");
   deif::dds::Node node(config, "node-test-sub-ros2", "node_sub_ros2");
   CHECK_THROWS_AS(node.SetSubPartition(Topic::kContribution, "a"), std::logic_error);
+}
+
+namespace {
+
+// What Fast DDS 2.9.1's shared-memory receive thread logs each time it fails on a message
+// (SharedMemChannelResource::Receive): a warning of category RTPS_MSG_OUT.
+void LogReceiveError() {
+  using eprosima::fastdds::dds::Log;
+  Log::QueueLog("Error receiving data: No such file or directory - 0x1 (0x2)",
+                Log::Context{__FILE__, __LINE__, __func__, "RTPS_MSG_OUT"}, Log::Kind::Warning);
+}
+
+}  // namespace
+
+TEST_CASE("a loop of shared-memory receive errors marks the process deaf; a few do not",
+          "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  deif::dds::Node node(config, "node-test-deaf", "node_deaf");  // installs the log consumer
+  using eprosima::fastdds::dds::Log;
+  // Fast DDS formats warnings only when its verbosity lets them through.
+  CHECK(Log::GetVerbosity() >= Log::Kind::Warning);
+
+  for (int i = 0; i < 50; ++i) LogReceiveError();  // a socket closed, a peer gone: a handful
+  Log::QueueLog("something else", Log::Context{__FILE__, __LINE__, __func__, "RTPS_MSG_OUT"},
+                Log::Kind::Warning);
+  Log::Flush();
+  CHECK_FALSE(deif::dds::Node::ReceiveStuck());
+
+  for (int i = 0; i < 2000; ++i) LogReceiveError();  // the stuck loop logs tens of thousands a second
+  Log::Flush();
+  CHECK(deif::dds::Node::ReceiveStuck());
 }

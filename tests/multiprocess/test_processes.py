@@ -220,6 +220,61 @@ def test_realtime_target_restart(work, domain, monkeypatch):
             f"agent {j}: {complete} of {len(after)} steps complete; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def test_frozen_while_a_peer_dies(work, domain, monkeypatch):
+    """Real time at 10 Hz, agent 4 frozen from step 20 to step 100 (8 s) and agent 2 killed at
+    step 30, meanwhile. On resuming, agent 4's shared-memory port still holds agent 2's last
+    messages, whose segment the others have released by then (agent 2 is dead). A receive
+    thread of Fast DDS 2.9.1 that reaches such a message after its own process dropped the
+    segment is stuck on it for good, and the agent would hear nothing more; the agent sees
+    that loop and starts again in place (docs/FASTDDS_NOTES.md, "A receive loop stuck on a
+    dead writer's segment"). Either way it fuses again: most of its last 50 steps are
+    complete with agents 1 and 3, and theirs with it."""
+    monkeypatch.setenv("DEIF_DDS_LOG", "warning")  # Fast DDS's warnings in the logs, for a failure
+    faults = [launcher.Fault(20, "stop", 4), launcher.Fault(30, "kill", 2),
+              launcher.Fault(100, "cont", 4)]
+    res = launch(work, domain, agents=4, steps=200, faults=faults,
+                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
+    assert res.ok, res.summary["processes"]
+    with open(os.path.join(res.out_dir, "logs", "agent-4.log"), errors="replace") as f:
+        log = f.read()
+    restarted = log.count("starts again in place")
+    print(f"agent 4 restarted in place {restarted} time(s); "
+          f"{log.count('Error receiving data')} receive errors logged")
+    assert "giving up" not in log
+    for j in (1, 3, 4):
+        last = [r for r in rows(res.out_dir, j) if int(r["step"]) > 150]
+        complete = [r for r in last if r["complete"] == "1" and r["fused"] == "3"]
+        assert last and len(complete) >= 0.8 * len(last), \
+            f"agent {j}: {len(complete)} of {len(last)} steps fused 3; its log:\n{log_excerpt(res.out_dir, j)}"
+
+
+def test_restart_in_place(work, domain, monkeypatch):
+    """An agent that finds its receive stuck for good (docs/FASTDDS_NOTES.md, "A receive loop
+    stuck on a dead writer's segment") starts again in place: DEIF_FAULT_DEAF=50:3 makes agent
+    3 act so after step 50 of a real-time run. It logs why, execs itself with --append (the
+    same pid: the launcher sees no exit and no restart), keeps the rows it wrote, rejoins as a
+    new participant (a new token) and is fused by everyone again."""
+    monkeypatch.setenv("DEIF_FAULT_DEAF", "50:3")
+    res = launch(work, domain, agents=4, steps=150,
+                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
+    assert res.ok, res.summary["processes"]
+    agent3 = next(p for p in res.summary["processes"] if p["name"] == "agent_3")
+    assert agent3["exit_status"] == 0 and agent3["restarts"] == 0, agent3
+    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
+        log = f.read()
+    assert log.count("starts again in place") == 1
+    tokens = re.findall(r"agent 3 up: run .*token ([0-9a-f]{16})", log)
+    assert len(tokens) == 2 and tokens[0] != tokens[1], tokens
+    steps = steps_of(res.out_dir, 3)
+    assert steps[:50] == list(range(1, 51)) and steps[-1] == 150  # the rows before are kept
+    assert steps == sorted(set(steps))  # appended, never written twice
+    for j in range(1, 5):
+        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 80]
+        fused_all = sum(r["fused"] == "4" for r in late)
+        assert late and fused_all >= 0.8 * len(late), \
+            f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
+
+
 def test_frozen_agent(work, domain):
     """Agent 2 frozen (SIGSTOP) at step 80 and resumed at 125: the others fuse three meanwhile,
     equal to the simulation; once back, agent 2 agrees with them bit for bit and the ring of

@@ -904,3 +904,57 @@ TEST_CASE("After a freeze longer than the history, a backlog of contributions th
     CHECK(contributions_first[i].fused == ranges_first[i].fused);
   }
 }
+
+namespace {
+
+// What an agent with options `resume_after` writes when the first range it hears is the
+// target's range of step 1 measured for a predecessor at the same starting position (from
+// the target's history), and then nothing until long after that step's deadline.
+std::vector<StepIndex> RowsAfterAStaleFirstRange(StepIndex resume_after) {
+  const deif::Config config = deif::ParseConfig(
+      "scenario: {steps: 100, mode: realtime, period_s: 0.1}\nagents: {count: 3}\n", "resume_test");
+  protocol::AgentProtocol::Options options;
+  options.run = protocol::RunTokenOf("resume");
+  options.resume_after = resume_after;
+  protocol::AgentProtocol agent(config, 2, options);
+  agent.Start(0.0);
+  Vector2 start = Vector2::Zero();
+  for (const auto& action : agent.TakeActions()) {
+    if (const auto* state = std::get_if<protocol::agent_action::PublishState>(&action)) {
+      start = state->msg.position_m;
+    }
+  }
+  protocol::RangeMsg range;
+  range.run = options.run;
+  range.agent_id = 2;
+  range.step = 1;
+  range.measured = true;
+  range.range_m = 2.0;
+  range.variance_m2 = 5.3e-4;
+  range.p_sensor = start;  // where this process starts, as its predecessor did
+  range.roll_call = {1, 2, 3};
+  protocol::SenderKey target{};
+  target[0] = 7;
+  agent.OnRange(range, target, 0.01);
+  agent.OnTimer(1.0);
+  std::vector<StepIndex> written;
+  for (const auto& action : agent.TakeActions()) {
+    if (const auto* row = std::get_if<protocol::agent_action::WriteRow>(&action)) {
+      written.push_back(row->row.step);
+    }
+  }
+  return written;
+}
+
+}  // namespace
+
+TEST_CASE("A restarted agent that appends to its rows never writes a step at or before its last",
+          "[protocol]") {
+  // GIVEN an agent whose rows end at step 50 (a restart), and one that starts afresh
+  // WHEN each hears first the target's old range of step 1, measured where both start
+  // THEN the new agent takes it and writes from step 1 on, on its clock; the restarted one
+  // writes nothing (it joins at the first range after step 50)
+  const std::vector<StepIndex> fresh = RowsAfterAStaleFirstRange(0);
+  CHECK((!fresh.empty() && fresh.front() == 1));
+  CHECK(RowsAfterAStaleFirstRange(50).empty());
+}
