@@ -670,6 +670,7 @@ class Launcher:
             procs.append({"name": name, "argv": p.argv, "host": p.host, "exit_status": status,
                           "signal": -status if status is not None and status < 0 else None,
                           "expected": expected, "restarts": p.restarts,
+                          "restarts_in_place": restarts_in_place(p.log_path),
                           "started_unix_s": p.started_unix_s,
                           "log": os.path.relpath(p.log_path, self.out_dir)})
         metrics = self.evaluate()
@@ -719,6 +720,16 @@ class Launcher:
         if proc.returncode != 0:
             return {"error": proc.stderr.strip()}
         return json.loads(proc.stdout)
+
+
+def restarts_in_place(log_path):
+    """How often a process started again in place after its receive got stuck (its log says
+    so; docs/RUNNING.md, "Restarting in place")."""
+    try:
+        with open(log_path, "rb") as f:
+            return f.read().count(b"starts again in place")
+    except OSError:
+        return 0
 
 
 def run(config_path, out_dir, live=None, **kwargs):

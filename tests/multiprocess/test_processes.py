@@ -260,6 +260,7 @@ def test_restart_in_place(work, domain, monkeypatch):
     assert res.ok, res.summary["processes"]
     agent3 = next(p for p in res.summary["processes"] if p["name"] == "agent_3")
     assert agent3["exit_status"] == 0 and agent3["restarts"] == 0, agent3
+    assert agent3["restarts_in_place"] == 1, agent3  # the summary counts it from the log
     with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
         log = f.read()
     assert log.count("starts again in place") == 1
