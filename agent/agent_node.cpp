@@ -1,7 +1,6 @@
 #include "agent/agent_node.hpp"
 
 #include <algorithm>
-#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -16,7 +15,6 @@ namespace deif::agent {
 namespace {
 
 constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
-constexpr int kMaxRestartsInPlace = 3;  // AgentNode::Deaf
 
 // The last step of the rows a restarted process appends to (0: none, or unreadable).
 StepIndex LastStepWritten(const dds::ProcessContext& context, AgentId id) {
@@ -156,16 +154,8 @@ int AgentNode::Run() {
 }
 
 bool AgentNode::DeafForTest() const {
-  // DEIF_FAULT_DEAF=STEP:ID: from step STEP on, the first process of agent ID acts as if its
-  // receive were stuck, so that tests can run the restart in place on demand (the stuck loop
-  // itself comes from a race inside Fast DDS; docs/RUNNING.md, "Restarting in place").
-  static const long at_step = [this] {
-    const char* value = std::getenv("DEIF_FAULT_DEAF");
-    long step = 0, agent = 0;
-    if (value == nullptr || std::sscanf(value, "%ld:%ld", &step, &agent) != 2) return 0L;
-    return agent == static_cast<long>(id_) ? step : 0L;
-  }();
-  return at_step > 0 && dds::RestartsInPlace() == 0 && protocol_.last_written_step() >= at_step;
+  static const StepIndex at_step = dds::FaultDeafStep(std::to_string(id_));
+  return at_step > 0 && protocol_.last_written_step() >= at_step;
 }
 
 int AgentNode::Deaf() {
@@ -174,7 +164,7 @@ int AgentNode::Deaf() {
   // new process appends to them and rejoins as a restarted agent does (docs/PROTOCOL.md).
   WriteCounters();
   const int restarts = dds::RestartsInPlace();
-  if (restarts >= kMaxRestartsInPlace) {
+  if (restarts >= dds::kMaxRestartsInPlace) {
     context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast DDS "
                         "is stuck on a message of a dead peer, after {} restart(s) in place; giving up "
                         "after step {}", restarts, protocol_.last_written_step());

@@ -34,7 +34,7 @@ class AgentNode : public dds::Application {
   void Execute(std::vector<protocol::AgentAction> actions);
   // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   // Ends Run() when this process can no longer hear (Node::ReceiveStuck): restarts it in
-  // place (RestartInPlace), at most kMaxRestartsInPlace times in a process's life.
+  // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();
   bool DeafForTest() const;
   void ReportMatches(double now_s);

@@ -16,6 +16,7 @@
 #include <fstream>
 #include <memory>
 #include <mutex>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -156,7 +157,17 @@ void BoundTeardown(int code, std::shared_ptr<spdlog::logger> log) {
 // Fast DDS's lock files among them, so that its peers find the old ports and segments dead.
 // Returns why it could not.
 std::string ExecAgain(int argc, char** argv) {
-  std::vector<std::string> args(argv, argv + argc);
+  std::vector<std::string> args;
+  for (int i = 0; i < argc; ++i) {
+    // A target resumes after the agents' newest step, not at the step it was first given.
+    const std::string a = argv[i];
+    if (a == "--start-step" && i + 1 < argc) {
+      ++i;
+      continue;
+    }
+    if (a.rfind("--start-step=", 0) == 0) continue;
+    args.push_back(a);
+  }
   if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
   std::vector<char*> exec_argv;
   for (std::string& a : args) exec_argv.push_back(a.data());
@@ -221,6 +232,20 @@ std::string DefaultRunName(const Config& config) {
   std::snprintf(buffer, sizeof buffer, "cfg-%016llx",
                 static_cast<unsigned long long>(protocol::RunTokenOf(ToYaml(config))));
   return buffer;
+}
+
+StepIndex FaultDeafStep(const std::string& who) {
+  const char* value = std::getenv("DEIF_FAULT_DEAF");
+  if (value == nullptr || RestartsInPlace() > 0) return 0;
+  std::stringstream list(value);
+  std::string item;
+  while (std::getline(list, item, ',')) {
+    const std::size_t colon = item.find(':');
+    if (colon == std::string::npos || item.substr(colon + 1) != who) continue;
+    const std::string step = item.substr(0, colon);
+    if (!step.empty() && step.size() < 10 && AllDigits(step)) return std::stoll(step);
+  }
+  return 0;
 }
 
 int RestartsInPlace() {

@@ -81,7 +81,12 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec);
 // The environment variable that counts a process's restarts in place (RestartInPlace), and
 // their number so far in this process (0 in one started afresh).
 constexpr const char* kRestartsVariable = "DEIF_RESTARTS_IN_PLACE";
+constexpr int kMaxRestartsInPlace = 3;  // then a process that is stuck again ends with code 1
 int RestartsInPlace();
+// DEIF_FAULT_DEAF=STEP:WHO[,STEP:WHO...] (WHO: an agent id, or "target"): the step from which
+// the first process of `who` acts as if its receive were stuck, so that tests can run the
+// restart in place on demand (docs/RUNNING.md, "Restarting in place"); 0 when not asked.
+StepIndex FaultDeafStep(const std::string& who);
 
 // A protocol's log line, at its level, through the process logger.
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);

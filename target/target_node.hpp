@@ -30,9 +30,12 @@ class TargetNode : public dds::Application {
   int Run() override;
   void Stop() override;
   bool LeaveQuietly() override;
+  bool RestartInPlace() const override { return restart_in_place_; }
 
  private:
   bool AnotherTargetInThisRun();
+  void WriteCounters() const;
+  bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
   void Execute(std::vector<protocol::TargetAction> actions);
   void ReadControl();  // the stdin thread: "go <step>" lines
   void Dispatch(const dds::Event& event, double now_s);
@@ -45,7 +48,7 @@ class TargetNode : public dds::Application {
   std::optional<TargetCsv> target_csv_;
   std::optional<RangesCsv> ranges_csv_;
   std::atomic<bool> stop_requested_{false};
-  bool deaf_logged_ = false;  // Node::ReceiveStuck logged
+  bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   std::optional<int> exit_code_;
   std::mutex control_mutex_;
   std::deque<StepIndex> go_steps_;  // guarded by control_mutex_

@@ -249,28 +249,35 @@ def test_frozen_while_a_peer_dies(work, domain, monkeypatch):
 
 
 def test_restart_in_place(work, domain, monkeypatch):
-    """An agent that finds its receive stuck for good (docs/FASTDDS_NOTES.md, "A receive loop
-    stuck on a dead writer's segment") starts again in place: DEIF_FAULT_DEAF=50:3 makes agent
-    3 act so after step 50 of a real-time run. It logs why, execs itself with --append (the
-    same pid: the launcher sees no exit and no restart), keeps the rows it wrote, rejoins as a
-    new participant (a new token) and is fused by everyone again."""
-    monkeypatch.setenv("DEIF_FAULT_DEAF", "50:3")
+    """A process that finds its receive stuck for good (docs/FASTDDS_NOTES.md, "A receive loop
+    stuck on a dead writer's segment") starts again in place: DEIF_FAULT_DEAF makes agent 3
+    act so after step 50 and the target after step 80 of a real-time run. Each logs why and
+    execs itself with --append (the same pid: the launcher sees no exit and no restart). The
+    agent keeps the rows it wrote, rejoins as a new participant (a new token) and is fused by
+    everyone again; the target resumes after the agents' newest step."""
+    monkeypatch.setenv("DEIF_FAULT_DEAF", "50:3,80:target")
     res = launch(work, domain, agents=4, steps=150,
                  overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
     assert res.ok, res.summary["processes"]
-    agent3 = next(p for p in res.summary["processes"] if p["name"] == "agent_3")
-    assert agent3["exit_status"] == 0 and agent3["restarts"] == 0, agent3
-    assert agent3["restarts_in_place"] == 1, agent3  # the summary counts it from the log
+    procs = {p["name"]: p for p in res.summary["processes"]}
+    for name in ("agent_3", "target"):
+        p = procs[name]
+        assert p["exit_status"] == 0 and p["restarts"] == 0, p
+        assert p["restarts_in_place"] == 1, p  # the summary counts it from the log
     with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
         log = f.read()
-    assert log.count("starts again in place") == 1
     tokens = re.findall(r"agent 3 up: run .*token ([0-9a-f]{16})", log)
     assert len(tokens) == 2 and tokens[0] != tokens[1], tokens
     steps = steps_of(res.out_dir, 3)
     assert steps[:50] == list(range(1, 51)) and steps[-1] == 150  # the rows before are kept
     assert steps == sorted(set(steps))  # appended, never written twice
+    with open(os.path.join(res.out_dir, "logs", "target.log")) as f:
+        starts = [int(m) for m in re.findall(r"starting at step (\d+)", f.read())]
+    assert len(starts) == 2 and starts[1] > 80, starts
+    target_steps = [int(r["step"]) for r in artefacts.read_csv(os.path.join(res.out_dir, "target.csv"))]
+    assert target_steps == sorted(set(target_steps)) and target_steps[-1] == 150
     for j in range(1, 5):
-        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 80]
+        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > starts[1] + 10]
         fused_all = sum(r["fused"] == "4" for r in late)
         assert late and fused_all >= 0.8 * len(late), \
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
