@@ -163,18 +163,9 @@ int AgentNode::Deaf() {
   // dead writer's segment"); a new participant can. The rows written so far are kept: the
   // new process appends to them and rejoins as a restarted agent does (docs/PROTOCOL.md).
   WriteCounters();
-  const int restarts = dds::RestartsInPlace();
-  if (restarts >= dds::kMaxRestartsInPlace) {
-    context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast DDS "
-                        "is stuck on a message of a dead peer, after {} restart(s) in place; giving up "
-                        "after step {}", restarts, protocol_.last_written_step());
-    return protocol::kExitRuntimeError;
-  }
-  context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast DDS is "
-                      "stuck on a message of a dead peer (docs/FASTDDS_NOTES.md); after step {} it "
-                      "starts again in place and rejoins", protocol_.last_written_step());
-  restart_in_place_ = true;
-  return protocol::kExitRuntimeError;  // the exit code only if the restart fails
+  restart_in_place_ = dds::MayRestartInPlace(
+      *context_.log, "after step " + std::to_string(protocol_.last_written_step()));
+  return protocol::kExitRuntimeError;  // the exit code when it does not start again
 }
 
 void AgentNode::ReportMatches(double now_s) {

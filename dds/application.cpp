@@ -248,6 +248,18 @@ StepIndex FaultDeafStep(const std::string& who) {
   return 0;
 }
 
+bool MayRestartInPlace(spdlog::logger& log, const std::string& when) {
+  const int restarts = RestartsInPlace();
+  if (restarts >= kMaxRestartsInPlace) {
+    log.error("this process hears nothing more: a shared-memory receive thread of Fast DDS is stuck on "
+              "a message of a dead peer, after {} restart(s) in place; giving up {}", restarts, when);
+    return false;
+  }
+  log.error("this process hears nothing more: a shared-memory receive thread of Fast DDS is stuck on a "
+            "message of a dead peer (docs/FASTDDS_NOTES.md); {} it starts again in place", when);
+  return true;
+}
+
 int RestartsInPlace() {
   const char* value = std::getenv(kRestartsVariable);
   return value != nullptr && AllDigits(value) && std::strlen(value) < 4 ? std::atoi(value) : 0;

@@ -87,6 +87,10 @@ int RestartsInPlace();
 // the first process of `who` acts as if its receive were stuck, so that tests can run the
 // restart in place on demand (docs/RUNNING.md, "Restarting in place"); 0 when not asked.
 StepIndex FaultDeafStep(const std::string& who);
+// For a process whose receive is stuck (Node::ReceiveStuck): logs why, and whether it may
+// start again in place (true) or already did kMaxRestartsInPlace times (false: it ends
+// with code 1). `when` says where its run stands, e.g. "after step 50".
+bool MayRestartInPlace(spdlog::logger& log, const std::string& when);
 
 // A protocol's log line, at its level, through the process logger.
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);

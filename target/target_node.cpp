@@ -150,18 +150,9 @@ int TargetNode::Run() {
       // on a dead writer's segment"); a new participant can. The new process resumes after
       // the agents' newest step, as a restarted target does (docs/PROTOCOL.md).
       WriteCounters();
-      const int restarts = dds::RestartsInPlace();
-      if (restarts >= dds::kMaxRestartsInPlace) {
-        context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast "
-                            "DDS is stuck on a message of a dead peer, after {} restart(s) in place; "
-                            "giving up at step {}", restarts, protocol_.current_step());
-        return protocol::kExitRuntimeError;
-      }
-      context_.log->error("this process hears nothing more: a shared-memory receive thread of Fast DDS "
-                          "is stuck on a message of a dead peer (docs/FASTDDS_NOTES.md); at step {} it "
-                          "starts again in place and resumes", protocol_.current_step());
-      restart_in_place_ = true;
-      return protocol::kExitRuntimeError;  // the exit code only if the restart fails
+      restart_in_place_ = dds::MayRestartInPlace(
+          *context_.log, "at step " + std::to_string(protocol_.current_step()));
+      return protocol::kExitRuntimeError;  // the exit code when it does not start again
     }
   }
   const double elapsed_s = std::chrono::duration<double>(dds::Clock::now() - started).count();
