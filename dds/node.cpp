@@ -34,7 +34,7 @@
 #include <fastdds/dds/subscriber/SampleInfo.hpp>
 #include <fastdds/dds/subscriber/Subscriber.hpp>
 #include <fastdds/dds/log/Log.hpp>
-#include <fastdds/dds/log/StdoutConsumer.hpp>
+#include <fastdds/dds/log/StdoutErrConsumer.hpp>
 #include <fastdds/dds/topic/ContentFilteredTopic.hpp>
 #include <fastdds/dds/topic/IContentFilter.hpp>
 #include <fastdds/dds/topic/IContentFilterFactory.hpp>
@@ -173,8 +173,10 @@ fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
 std::atomic<bool> g_receive_stuck{false};
 
 // Fast DDS's log, read by the process itself. It shows Fast DDS's errors, and with
-// DEIF_DDS_LOG=warning (or info) its warnings (and more) on stdout, as Fast DDS's own
-// consumer did; DEIF_DDS_LOG_CATEGORIES=REGEX keeps the categories it matches, e.g.
+// DEIF_DDS_LOG=warning (or info) its warnings (and more): errors and warnings on stderr, so
+// in every process's log (Fast DDS's own consumer wrote them on stdout, which for the
+// target is its launcher's control pipe); DEIF_DDS_LOG_CATEGORIES=REGEX keeps the categories
+// it matches, e.g.
 // '^(?!SECURITY_CRYPTO)' (docs/FASTDDS_NOTES.md, "Key hashes"). It always reads warnings,
 // to see one failure of Fast DDS 2.9.1 that nothing else shows: a shared-memory receive
 // thread that pops a message of a dead writer whose segment is gone fails on it without
@@ -212,7 +214,7 @@ class DdsLog final : public fdds::LogConsumer {
 
   fdds::Log::Kind shown_;
   std::optional<std::regex> categories_;
-  fdds::StdoutConsumer printer_;
+  fdds::StdoutErrConsumer printer_;  // warnings and errors on stderr, info on stdout
   Clock::time_point window_start_{};
   int errors_ = 0;
 };
