@@ -32,11 +32,11 @@ class AgentNode : public dds::Application {
   // when its permissions name that id (docs/SECURITY.md).
   bool Authorised(AgentId claimed, const protocol::SenderKey& writer) const;
   void Execute(std::vector<protocol::AgentAction> actions);
-  // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   // Ends Run() when this process can no longer hear (Node::ReceiveStuck): restarts it in
   // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();
-  bool DeafForTest() const;
+  bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
+  // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   void ReportMatches(double now_s);
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
   void WriteCounters() const;

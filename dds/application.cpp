@@ -152,20 +152,19 @@ void BoundTeardown(int code, std::shared_ptr<spdlog::logger> log) {
   }).detach();
 }
 
-// Execs this program again with the same arguments and --append (docs/RUNNING.md,
-// "Restarting in place"). Every descriptor but stdin, stdout and stderr is closed on exec:
+// Execs this program again with the same arguments (but the option `dropped` and its value)
+// and --append (docs/RUNNING.md, "Restarting in place"). Every descriptor but stdin, stdout and stderr is closed on exec:
 // Fast DDS's lock files among them, so that its peers find the old ports and segments dead.
 // Returns why it could not.
-std::string ExecAgain(int argc, char** argv) {
+std::string ExecAgain(int argc, char** argv, const char* dropped) {
   std::vector<std::string> args;
   for (int i = 0; i < argc; ++i) {
-    // A target resumes after the agents' newest step, not at the step it was first given.
     const std::string a = argv[i];
-    if (a == "--start-step" && i + 1 < argc) {
-      ++i;
+    if (dropped != nullptr && a == dropped) {
+      ++i;  // and its value
       continue;
     }
-    if (a.rfind("--start-step=", 0) == 0) continue;
+    if (dropped != nullptr && a.rfind(std::string(dropped) + "=", 0) == 0) continue;
     args.push_back(a);
   }
   if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
@@ -330,23 +329,17 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     });
     const int code = app->Run();
     signals.SetHandler(nullptr);
-    if (app->RestartInPlace()) {
-      app->LeaveQuietly();
-      app.reset();  // its files are written and closed
-      log->flush();
-      spdlog::shutdown();
-      std::fflush(stdout);
-      std::fflush(stderr);
-      const std::string why = ExecAgain(argc, argv);  // returns only when it could not
-      std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
-      std::_Exit(protocol::kExitRuntimeError);
-    }
-    if (app->LeaveQuietly()) {
+    const bool restart = app->RestartInPlace();
+    if (app->LeaveQuietly() || restart) {
       app.reset();  // its files are closed; its participant is left to the process's end
       log->flush();
       spdlog::shutdown();
       std::fflush(stdout);  // not fflush(nullptr): it would wait for stdin, read by another thread
       std::fflush(stderr);
+      if (restart) {
+        const std::string why = ExecAgain(argc, argv, spec.not_repeated_on_restart);  // only on failure
+        std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
+      }
       std::_Exit(code);
     }
     BoundTeardown(code, log);

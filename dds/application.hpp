@@ -69,6 +69,9 @@ struct ProcessSpec {
   std::function<std::string()> identity_name;
   // Checks the executable's own options against the config; throws ConfigError.
   std::function<void(const Config&)> check;
+  // An option (with its value) not passed again when the process restarts in place
+  // (Application::RestartInPlace), or nullptr.
+  const char* not_repeated_on_restart = nullptr;
   // Makes the application (after every check passed).
   std::function<std::unique_ptr<Application>(ProcessContext&)> make;
 };

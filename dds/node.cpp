@@ -173,16 +173,15 @@ fdds::DataReaderQos ReaderQos(Topic topic, const Config& config) {
 std::atomic<bool> g_receive_stuck{false};
 
 // Fast DDS's log, read by the process itself. It shows Fast DDS's errors, and with
-// DEIF_DDS_LOG=warning (or info) its warnings (and more): errors and warnings on stderr, so
-// in every process's log (Fast DDS's own consumer wrote them on stdout, which for the
-// target is its launcher's control pipe); DEIF_DDS_LOG_CATEGORIES=REGEX keeps the categories
-// it matches, e.g.
-// '^(?!SECURITY_CRYPTO)' (docs/FASTDDS_NOTES.md, "Key hashes"). It always reads warnings,
-// to see one failure of Fast DDS 2.9.1 that nothing else shows: a shared-memory receive
-// thread that pops a message of a dead writer whose segment is gone fails on it without
-// removing it, again and again, each time with the warning "Error receiving data", and the
-// process hears nothing more on that port (docs/FASTDDS_NOTES.md, "A receive loop stuck on
-// a dead writer's segment"). Thousands a second of them mean that loop.
+// DEIF_DDS_LOG=warning (or info) its warnings (and more): errors and warnings on stderr, so in
+// every process's log (Fast DDS's own consumer wrote them on stdout, which for the target is
+// its launcher's control pipe); DEIF_DDS_LOG_CATEGORIES=REGEX keeps the categories it matches,
+// e.g. '^(?!SECURITY_CRYPTO)' (docs/FASTDDS_NOTES.md, "Key hashes"). It always reads warnings,
+// to see one failure of Fast DDS 2.9.1 that nothing else shows: a shared-memory receive thread
+// that pops a message of a dead writer whose segment is gone fails on it without removing it,
+// again and again, each time with the warning "Error receiving data", and the process hears
+// nothing more on that port (docs/FASTDDS_NOTES.md, "A receive loop stuck on a dead writer's
+// segment"). Thousands a second of them mean that loop.
 class DdsLog final : public fdds::LogConsumer {
  public:
   DdsLog(fdds::Log::Kind shown, std::optional<std::regex> categories)

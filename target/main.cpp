@@ -25,6 +25,8 @@ int main(int argc, char** argv) {
                  "At a step with scripted faults print 'hold K' and, in lock-step, wait for "
                  "'go K' on stdin");
   };
+  // Restarted in place, it resumes after the agents' newest step, not at the step first given.
+  spec.not_repeated_on_restart = "--start-step";
   spec.logger_name = [] { return std::string("target"); };
   spec.check = [&](const deif::Config& config) {
     if (start_step > config.scenario.steps) {
