@@ -286,7 +286,11 @@ void AgentProtocol::AdoptHeldTarget(double now_s) {
 }
 
 void AgentProtocol::OnPeersMatched(int matched, int range_writers, double now_s) {
-  (void)now_s;
+  // Before the first range, a matched range writer is a target of this run that is up and
+  // waiting for the other agents (docs/PROTOCOL.md, "An agent"): the patience for the first
+  // range counts from when none is matched any more, not from this agent's start.
+  if (started_ && !ever_opened_ && target_matched_ && range_writers < 1) last_target_contact_s_ = now_s;
+  target_matched_ = range_writers > 0;
   // A match is known to each side only from the other side's announcement: the target's
   // writer may have matched our range reader while our reader has not yet matched the
   // writer, and a range sent then is dropped here until a discovery repair (1 s and more).
@@ -305,6 +309,7 @@ void AgentProtocol::OnTimer(double now_s) {
   ConfirmLapses(now_s);
   Advance(now_s);
   if (finished_) return;
+  if (!ever_opened_ && target_matched_) last_target_contact_s_ = now_s;  // waiting for the others
   const double silent_s = now_s - last_target_contact_s_;
   if (silent_s < Patience()) return;
   if (!ever_opened_) {
@@ -325,7 +330,7 @@ void AgentProtocol::OnTimer(double now_s) {
 std::optional<double> AgentProtocol::NextDeadline() const {
   if (finished_ || !started_) return std::nullopt;
   double t = last_target_contact_s_ + Patience();
-  if (target_silent_logged_) t = std::numeric_limits<double>::infinity();
+  if (target_silent_logged_ || (!ever_opened_ && target_matched_)) t = std::numeric_limits<double>::infinity();
   if (open_) {
     t = std::min(t, records_.rbegin()->second.deadline_s);
   } else if (RealTime() && clock_sync_) {

@@ -259,6 +259,7 @@ class AgentProtocol {
   // history_steps per writer.
   std::map<SenderKey, std::deque<RangeMsg>> held_target_ranges_;
   int matched_ = -1;
+  bool target_matched_ = false;  // the range reader has matched a range writer (OnPeersMatched)
   double last_target_contact_s_ = 0.0;
   bool target_silent_logged_ = false;
 };

@@ -112,6 +112,28 @@ class RunResult:
     ok: bool
     summary: dict = field(default_factory=dict)
 
+    def why_not_ok(self, lines=6):
+        """Why the run is not ok, in a few lines: each process that ended unexpectedly with its
+        exit status and the last error or warning lines of its log, an interruption, a
+        non-finite estimate. Empty when the run is ok."""
+        why = []
+        if self.summary.get("interrupted_by_signal"):
+            why.append(f"interrupted by signal {self.summary['interrupted_by_signal']}")
+        for p in self.summary.get("processes", []):
+            if p.get("expected", True):
+                continue
+            why.append(f"{p['name']} (host {p.get('host')}) ended with status {p['exit_status']}, "
+                       f"restarts {p.get('restarts')}, in place {p.get('restarts_in_place')}:")
+            try:
+                with open(os.path.join(self.out_dir, p["log"]), encoding="utf-8", errors="replace") as f:
+                    bad = [line.rstrip() for line in f if "[error]" in line or "[warning]" in line]
+                why.extend("  " + line[:300] for line in bad[-lines:])
+            except OSError as e:
+                why.append(f"  (no log: {e.strerror})")
+        if self.summary.get("metrics", {}).get("non_finite_estimates"):
+            why.append("an estimate was not finite (NaN or inf)")
+        return "\n".join(why)
+
 
 # The run's Discovery Server (deif-run --discovery-server): a server over UDPv4 only.
 DISCOVERY_SERVER_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
@@ -256,14 +278,16 @@ class Launcher:
             sets.append(f"network.discovery_server={host_ip}:{11811 + self.domain}")
             resolved = cfg.resolve(config_path, sets)
         # A secure run starts its processes one after another (start()); each takes a second
-        # or more to authenticate with those before it (about 27 s for 16 agents on 2 cores).
-        # The target's wait for the agents, and theirs for the first range, must cover that,
-        # and about as much when they start together (a stalled handshake costs a restart).
+        # or more to authenticate with those before it, and a stalled handshake 3 s and a
+        # random wait more (19-29 s for 16 agents on a quiet 2-core machine, more than 48 s
+        # on a busy one). The target's wait for the agents must cover that, and about as much
+        # when they start together: 6 s per agent. It only costs time when an agent never
+        # comes up (docs/SECURITY.md, "Start-up").
         self.start_timeout_raised = None
         secure_run = bool(resolved["network"]["security"]["enabled"])
         self.staggered = secure_run if staggered is None else bool(staggered)
         if secure_run:
-            least = 3.0 * self.n
+            least = 6.0 * self.n
             if float(resolved["network"]["start_timeout_s"]) < least:
                 self.start_timeout_raised = least
                 sets.append(f"network.start_timeout_s={least:g}")

@@ -27,7 +27,7 @@ def test_cyclone_reads_the_network(work, domain):
         res = launcher.run(SLOW_CIRCLE, os.path.join(work, "run"), agents=AGENTS, steps=STEPS,
                            domain=domain, run_name=run_name, progress=False,
                            overrides=["scenario.mode=realtime", "scenario.period_s=0.05"])
-        assert res.ok, res.summary["processes"]
+        assert res.ok, res.why_not_ok()
     finally:
         listener.terminate()
         assert listener.wait(30) == 0

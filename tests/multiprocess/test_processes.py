@@ -90,7 +90,7 @@ def test_equality(work, domain):
     """N=4, lock-step, 300 steps: every agent equals the in-process simulation and the
     centralized EIF replayed over ranges.csv at every step; gaps converge to pi/2 +- 1 deg."""
     res = launch(work, domain, agents=4, steps=300)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         assert steps_of(res.out_dir, j) == list(range(1, 301))
         assert all(r["fused"] == "4" and r["complete"] == "1" for r in rows(res.out_dir, j))
@@ -113,7 +113,7 @@ def test_kill_one(work, domain):
     within a lease, lose no step, fuse three from step 100, equal the simulation bit for bit
     and spread to 2 pi/3 +- 1 deg."""
     res = launch(work, domain, agents=4, steps=300, faults=[launcher.Fault(100, "kill", 3)])
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     fault = res.summary["faults"][0]
     assert fault["applied_at_step"] == 100
     assert steps_of(res.out_dir, 3)[-1] == 99  # it died before step 100
@@ -133,7 +133,7 @@ def test_down_to_two(work, domain):
     """N=5 killed down to 2: the two survivors equal the simulation and end pi/2 apart."""
     faults = [launcher.Fault(60, "kill", 5), launcher.Fault(120, "kill", 2), launcher.Fault(180, "kill", 4)]
     res = launch(work, domain, agents=5, steps=320, faults=faults)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     for j in (1, 3):
         last = rows(res.out_dir, j)[-1]
         assert int(last["step"]) == 320 and int(last["alive"]) == 2
@@ -146,7 +146,7 @@ def test_target_restart(work, domain):
     """The target is killed and restarted before step 100: no agent notices in its numbers
     (the run equals the simulation, where a restart changes nothing) and every process ends 0."""
     res = launch(work, domain, agents=4, steps=250, faults=[launcher.Fault(100, "restart_target")])
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert res.summary["faults"][0]["applied_at_step"] == 100
     target = next(p for p in res.summary["processes"] if p["name"] == "target")
     assert target["restarts"] == 1
@@ -166,7 +166,7 @@ def test_frozen_through_target_restart(work, domain):
     faults = [launcher.Fault(30, "stop", 2), launcher.Fault(45, "restart_target"),
               launcher.Fault(60, "cont", 2)]
     res = launch(work, domain, agents=4, steps=150, faults=faults)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert [f["applied_at_step"] for f in res.summary["faults"]] == [30, 45, 60]
     with open(os.path.join(res.out_dir, "logs", "agent-2.log")) as f:
         log = f.read()
@@ -203,7 +203,7 @@ def test_realtime_target_restart(work, domain, monkeypatch):
               launcher.Fault(22, "cont", 4)]
     res = launch(work, domain, agents=4, steps=150, faults=faults,
                  overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     with open(os.path.join(res.out_dir, "logs", "target.log")) as f:
         starts = [int(m) for m in re.findall(r"starting at step (\d+)", f.read())]
     assert starts[0] == 1 and len(starts) == 2 and starts[1] > 21, starts
@@ -234,7 +234,7 @@ def test_frozen_while_a_peer_dies(work, domain, monkeypatch):
               launcher.Fault(100, "cont", 4)]
     res = launch(work, domain, agents=4, steps=200, faults=faults,
                  overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     with open(os.path.join(res.out_dir, "logs", "agent-4.log"), errors="replace") as f:
         log = f.read()
     restarted = log.count("starts again in place")
@@ -258,7 +258,7 @@ def test_restart_in_place(work, domain, monkeypatch):
     monkeypatch.setenv("DEIF_FAULT_DEAF", "50:3,80:target")
     res = launch(work, domain, agents=4, steps=150,
                  overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     procs = {p["name"]: p for p in res.summary["processes"]}
     for name in ("agent_3", "target"):
         p = procs[name]
@@ -294,7 +294,7 @@ def test_frozen_agent(work, domain):
     simulation."""
     faults = [launcher.Fault(80, "stop", 2), launcher.Fault(125, "cont", 2)]
     res = launch(work, domain, agents=4, steps=300, faults=faults)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert [f["applied_at_step"] for f in res.summary["faults"]] == [80, 125]
     sim = oracle(res.out_dir, work)
     worst, _ = largest_difference(res.out_dir, sim, (1, 3, 4))
@@ -328,7 +328,7 @@ def test_duplicate_id(work, domain):
     assert dup.returncode == 3, dup.stderr[-500:]
     assert "already live" in dup.stderr
     assert dup_done < 3000
-    assert res.ok
+    assert res.ok, res.why_not_ok()
     assert steps_of(res.out_dir, 2)[-1] == 3000
 
 
@@ -370,7 +370,7 @@ def test_hostile_contributions(work, domain):
     res, out = hostile(work, domain, "contributions", agents=5, faults=[launcher.Fault(5, "kill", 5)],
                        live=4)
     sent = int(re.search(r"sent (\d+)", out).group(1))
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         assert counted(res.summary, j) == sent, res.summary["counters"][f"agent_{j}"]
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
@@ -381,7 +381,7 @@ def test_hostile_truth(work, domain):
     """An end-of-run marker (step -1) and a step of 1e12 on deif/truth: agents never read the
     truth, so the run completes every step unharmed."""
     res, _ = hostile(work, domain, "truth")
-    assert res.ok
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         assert steps_of(res.out_dir, j) == list(range(1, 1501))
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
@@ -393,7 +393,7 @@ def test_hostile_ranges(work, domain):
     target: every agent rejects and counts each; nothing reaches an estimate."""
     res, out = hostile(work, domain, "ranges")
     sent = int(re.search(r"sent (\d+)", out).group(1))
-    assert res.ok
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         assert counted(res.summary, j) == sent // 4
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
@@ -406,7 +406,7 @@ def test_hostile_states(work, domain):
     # Over UDPv4: the hostile peer exits right after its two samples, and a shared-memory
     # sample lives in its writer's segment, which dies with it (docs/FASTDDS_NOTES.md).
     res, out = hostile(work, domain, "states", overrides=["network.transport=udp"])
-    assert res.ok
+    assert res.ok, res.why_not_ok()
     assert res.summary["counters"]["target"]["rejected"] == 2, res.summary["counters"]["target"]
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
     assert worst == 0.0
@@ -433,7 +433,7 @@ def test_hostile_flood(work, domain):
     print(f"flood: {sent} contributions in 10 s;",
           {j: counted(res.summary, j) for j in range(1, 5)}, "counted by the agents")
     assert sent > 10000
-    assert res.ok
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
             assert " lost (liveliness)" not in f.read()
@@ -467,7 +467,7 @@ def test_stray_target(work, domain):
         res = lau.finish()
     assert second.returncode == 3 and "already has a target" in second.stderr
     assert stray.returncode == 1 and "no agent appeared" in stray_err  # it saw none of ours
-    assert res.ok
+    assert res.ok, res.why_not_ok()
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
     assert worst == 0.0
 
@@ -488,7 +488,7 @@ def test_run_isolation(work, domain):
         a.terminate_all()
         b.terminate_all()
         ra, rb = a.finish(), b.finish()
-    assert ra.ok and rb.ok
+    assert ra.ok and rb.ok, (ra.why_not_ok(), rb.why_not_ok())
     for r in (ra, rb):
         worst, n = largest_difference(r.out_dir, oracle(r.out_dir), range(1, 4))
         assert n == 600 and worst == 0.0
@@ -613,7 +613,7 @@ def test_discovery_server(work, domain):
             faults = [launcher.Fault(30, "restart_target")] if name == "second" else []
             res = launch(work, domain, name=name, agents=4, steps=60, discovery_server=True,
                          faults=faults)
-            assert res.ok, res.summary["processes"]
+            assert res.ok, res.why_not_ok()
             target = next(p for p in res.summary["processes"] if p["name"] == "target")
             assert target["restarts"] == len(faults)
             assert [p["name"] for p in res.summary["processes"]].count("discovery_server") == 1

@@ -29,7 +29,7 @@ def test_secure_equals_plain(work, domain):
                          domain=domain, progress=False)
     secure = launcher.run(SLOW_CIRCLE, os.path.join(work, "secure"), agents=4, steps=300,
                           domain=domain, progress=False, secure=True)
-    assert plain.ok and secure.ok, (plain.summary["processes"], secure.summary["processes"])
+    assert plain.ok and secure.ok, (plain.why_not_ok(), secure.why_not_ok())
     assert secure.summary["security"]["enabled"] and not plain.summary["security"]["enabled"]
     assert secure.summary["config"]["network"]["security"]["enabled"] is True
     assert os.path.exists(os.path.join(secure.out_dir, "certs", "agent-4.permissions.p7s"))
@@ -137,7 +137,7 @@ def assert_unharmed(res, work, done_at):
     """Every process exited 0; every agent wrote every step from 1 without a gap, past the
     end of the attack; and every row equals the in-process simulation of the run's config
     bit for bit: nothing a hostile sent was fused or changed a roll call."""
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         steps = steps_of(res.out_dir, j)
         assert steps == list(range(1, len(steps) + 1)), f"agent {j} skipped a step"
@@ -168,7 +168,7 @@ def test_unauthenticated_peers(work, domain):
         assert received(out) == 0, out  # ... and heard nothing
     for name, c in res.summary["counters"].items():
         assert c["rejected"] == 0 and c.get("dropped", 0) == 0, (name, c)  # the target has no drops
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         steps = steps_of(res.out_dir, j)
         assert steps == list(range(1, len(steps) + 1)), f"agent {j} skipped a step"
@@ -218,7 +218,7 @@ def test_claimed_id(work, domain):
         # Each receiver saw some of them (not necessarily all: a busy receiver's keep-last
         # history drops part of a fast burst) and rejected nothing else.
         assert 0 < refused <= sent(out) and c["rejected"] == refused, (name, c)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     for j in range(1, 5):
         steps = steps_of(res.out_dir, j)
         assert steps == list(range(1, len(steps) + 1)), f"agent {j} skipped a step"
@@ -302,7 +302,7 @@ def test_wire_encrypted(work, domain):
     none` (docs/SECURITY.md, "Submessage protection"), which leaves the submessages
     unsigned but still encrypts every payload."""
     plain, plain_pcap = capture(work, domain, "plain", secure=False)
-    assert plain.ok
+    assert plain.ok, plain.why_not_ok()
     plain_values = plaintext_values(plain.out_dir)
     assert len(plain_values) > 500
     found_plain = sum(1 for v in plain_values if v in plain_pcap)
@@ -314,7 +314,7 @@ def test_wire_encrypted(work, domain):
         assert "<metadata_protection_kind>NONE</metadata_protection_kind>" in f.read()
     for name, certs_dir in (("secure", None), ("submessages-none", unsigned)):
         secure, secure_pcap = capture(work, domain, name, secure=True, certs_dir=certs_dir)
-        assert secure.ok, name
+        assert secure.ok, (name, secure.why_not_ok())
         secure_values = plaintext_values(secure.out_dir)
         assert len(secure_values) > 500
         found_secure = [v for v in secure_values if v in secure_pcap]
@@ -420,7 +420,7 @@ def test_live_observer(work, domain):
     the lowest live id, against the truth."""
     res = launcher.run(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=60, domain=domain,
                        progress=False, secure=True, live=0)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     observer = next(p for p in res.summary["processes"] if p["name"] == "observer")
     assert observer["exit_status"] == 0, observer
     live = {int(r["step"]): r for r in artefacts.read_csv(os.path.join(res.out_dir, "observer.csv"))}
@@ -456,7 +456,7 @@ def test_sixteen_agents(work, domain):
     lost and a step is fused without it (docs/SECURITY.md, "Known limits")."""
     res = launcher.run(SLOW_CIRCLE, os.path.join(work, "run"), agents=16, steps=40, domain=domain,
                        progress=False, secure=True, overrides=[LONG_LEASE])
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert res.summary["metrics"]["final_agents"] == 16
     for j in range(1, 17):
         assert steps_of(res.out_dir, j) == list(range(1, 41)), j

@@ -29,7 +29,7 @@ def test_lockstep_10_percent_loss(work, domain):
     `alive` column then shows it, but the roll call, and so the estimate, do not change.)"""
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, progress=False)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert every_step_written(res.out_dir, range(1, 5), 200)
     oracle = res.out_dir + "-oracle"
     subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(res.out_dir, "config.yaml"),
@@ -47,7 +47,7 @@ def test_realtime_10_percent_loss(work, domain):
     (late contributions are fused into their steps)."""
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, overrides=REALTIME, progress=False)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert every_step_written(res.out_dir, range(1, 5), 200)
     for j in range(1, 5):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
@@ -75,7 +75,7 @@ def test_partition_and_heal(work, domain):
     exactness"); at least 80 % of the steps agree all the same."""
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=250, hosts=3,
                        overrides=REALTIME, partitions=[launcher.Partition(80, 3.0, 3)], progress=False)
-    assert res.ok, res.summary["processes"]
+    assert res.ok, res.why_not_ok()
     assert every_step_written(res.out_dir, range(1, 5), 250)
     p = res.summary["partitions"][0]
     healed = p["healed_at_step"]

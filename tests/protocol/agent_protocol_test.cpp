@@ -958,3 +958,44 @@ TEST_CASE("A restarted agent that appends to its rows never writes a step at or 
   CHECK((!fresh.empty() && fresh.front() == 1));
   CHECK(RowsAfterAStaleFirstRange(50).empty());
 }
+
+namespace {
+
+// When an agent that never gets a range gives up (its exit code), given what its range
+// reader has matched: `matched_until` < 0, never a range writer; else one from the start until
+// then. Timers every 0.5 s up to 200 s; returns (the time it finished, its exit code), or
+// (inf, -1) if it never did.
+std::pair<double, int> GivesUpAt(double matched_until) {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {start_timeout_s: 10, step_timeout_s: 2}\n", "patience_test");
+  protocol::AgentProtocol::Options options;
+  options.run = protocol::RunTokenOf("patience");
+  protocol::AgentProtocol agent(config, 1, options);
+  agent.Start(0.0);
+  if (matched_until >= 0.0) agent.OnPeersMatched(3, 1, 0.0);
+  for (double t = 0.5; t <= 200.0; t += 0.5) {
+    if (matched_until >= 0.0 && std::abs(t - matched_until) < 1e-9) agent.OnPeersMatched(3, 0, t);
+    agent.OnTimer(t);
+    for (const auto& action : agent.TakeActions()) {
+      if (const auto* f = std::get_if<protocol::agent_action::Finish>(&action)) return {t, f->exit_code};
+    }
+  }
+  return {std::numeric_limits<double>::infinity(), -1};
+}
+
+}  // namespace
+
+TEST_CASE("Before its first range an agent waits while a target of its run is matched, and gives "
+          "up start_timeout_s + step_timeout_s after none is", "[protocol]") {
+  // GIVEN start_timeout_s 10 and step_timeout_s 2 (a patience of 12 s before the first range)
+  // WHEN no range writer is ever matched, THEN the agent gives up 12 s after its start
+  const auto alone = GivesUpAt(-1.0);
+  CHECK(alone.first == 12.0);
+  CHECK(alone.second == protocol::kExitRuntimeError);
+  // WHEN the target's range writer is matched from the start for 100 s (a target up and
+  // waiting for agents that start one after another), THEN the agent waits, and gives up
+  // 12 s after the writer is gone
+  const auto waited = GivesUpAt(100.0);
+  CHECK(waited.first == 112.0);
+  CHECK(waited.second == protocol::kExitRuntimeError);
+}

@@ -119,10 +119,10 @@ def test_default_run_folder_is_under_runs():
     assert path.startswith(os.path.join(ROOT, "runs", "default-"))
 
 
-@pytest.mark.parametrize("agents,configured,expected", [(16, None, 48.0), (4, None, 30.0), (16, 100.0, 100.0)])
+@pytest.mark.parametrize("agents,configured,expected", [(16, None, 96.0), (4, None, 30.0), (16, 120.0, 120.0)])
 def test_secure_start_timeout_covers_the_staggered_start(deif_sim, work_dir, agents, configured, expected):
     """A secure run starts its processes one after another (docs/SECURITY.md, "Start-up"):
-    the start timeout is raised to 3 s per agent when it is shorter, never lowered, and the
+    the start timeout is raised to 6 s per agent when it is shorter, never lowered, and the
     raise is written to the config every process reads."""
     out = os.path.join(work_dir, "run")
     sets = ["network.security.enabled=true", "network.security.dir=" + os.path.join(work_dir, "certs")]
@@ -144,6 +144,6 @@ def test_the_start_order_can_be_chosen(deif_sim, work_dir):
     together = launcher.Launcher(DEFAULT, os.path.join(work_dir, "a"), agents=16, overrides=sets,
                                  staggered=False)
     assert not together.staggered
-    assert together.cfg["network"]["start_timeout_s"] == 48.0
+    assert together.cfg["network"]["start_timeout_s"] == 96.0
     plain = launcher.Launcher(DEFAULT, os.path.join(work_dir, "b"), agents=4, staggered=True)
     assert plain.staggered
