@@ -98,6 +98,11 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
 // more heartbeats, which draw more acknowledgements.
 constexpr double kLivelinessBudgetPerS = 4000.0;
 constexpr double kHeartbeatBudgetPerS = 20000.0;
+// Participant announcements grow as N^2 too: each process's reaches every other, a wake-up
+// of a receive thread each. At N = 64 the default 0.5 s period made 8320 a second; at 2 s a
+// 64-agent lock-step ran 8.5 steps/s against 6.4, with 15 % less CPU (docs/BENCHMARKS.md,
+// "Participant announcements at large N").
+constexpr double kAnnouncementBudgetPerS = 2000.0;
 
 }  // namespace
 
@@ -116,6 +121,12 @@ Timings EffectiveTimings(const Config& config) {
   t.assertions_per_lease = std::max(
       least, std::min(net.liveliness_assertions_per_lease, static_cast<int>(affordable + 1e-9)));
   t.heartbeat_period_s = std::max(net.heartbeat_period_s, pairs / kHeartbeatBudgetPerS);
+  // A longer announcement period comes with a lease as many periods long as configured, so
+  // that a starved process does not lose its peers sooner (measured in periods).
+  t.participant_announcement_s =
+      std::max(net.participant_announcement_s, pairs / kAnnouncementBudgetPerS);
+  t.participant_lease_s =
+      net.participant_lease_s * (t.participant_announcement_s / net.participant_announcement_s);
   return t;
 }
 
@@ -273,8 +284,9 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
   qos.name(name);
   const NetworkConfig& network = config.network;
   auto& discovery = qos.wire_protocol().builtin.discovery_config;
-  discovery.leaseDuration = DdsDuration(network.participant_lease_s);
-  discovery.leaseDuration_announcementperiod = DdsDuration(network.participant_announcement_s);
+  const Timings timings = EffectiveTimings(config);
+  discovery.leaseDuration = DdsDuration(timings.participant_lease_s);
+  discovery.leaseDuration_announcementperiod = DdsDuration(timings.participant_announcement_s);
   if (network.discovery == DiscoveryKind::kServer) {
     const std::string& address = network.discovery_server;
     const std::size_t colon = address.rfind(':');
@@ -296,7 +308,9 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
       // A port whose listener has not stirred for this long is taken for a dead process's
       // and removed; Fast DDS's 1 s took the port of a process that was only starved of CPU
       // (docs/FASTDDS_NOTES.md, "A starved process's port"). A participant lease is how
-      // long the network waits for a silent process anyway.
+      // long the network waits for a silent process anyway: the configured one, not the
+      // longer one of a large network (EffectiveTimings): with that (20.8 s at N = 64)
+      // every process outlived the run's end by 10-20 s, its exit held up by this check.
       shm->healthy_check_timeout_ms(static_cast<std::uint32_t>(
           std::max(1000.0, 1000.0 * network.participant_lease_s)));
       qos.transport().user_transports.push_back(shm);

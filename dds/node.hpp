@@ -141,12 +141,15 @@ class Node {
 };
 
 // The timings a network of config.agents.count agents actually uses (dds/node.cpp): the
-// configured ones, unless the N^2 liveliness and heartbeat traffic would exceed what one
-// busy host can carry; then a longer lease, fewer assertions, a longer heartbeat.
+// configured ones, unless the N^2 liveliness, heartbeat and participant-announcement traffic
+// would exceed what one busy host can carry; then a longer lease, fewer assertions, a longer
+// heartbeat, a longer announcement period with a participant lease as many periods long.
 struct Timings {
   double liveliness_lease_s = 0.0;
   int assertions_per_lease = 1;
   double heartbeat_period_s = 0.0;
+  double participant_announcement_s = 0.0;
+  double participant_lease_s = 0.0;
 };
 Timings EffectiveTimings(const Config& config);
 

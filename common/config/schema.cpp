@@ -506,13 +506,19 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Doc("Participant lease: a participant silent this long is dropped with all its "
            "readers and writers. Long on purpose: a partition shorter than the lease does not "
            "tear down matching, and a long lease avoids a Fast DDS assertion under CPU "
-           "starvation.");
+           "starvation. Where the announcement period grows (participant_announcement_s), "
+           "the lease grows with it: as many periods long as configured (20.8 s at 64 "
+           "agents with the defaults).");
   t.Add("participant_announcement_s",
         [](Config& c) -> auto& { return c.network.participant_announcement_s; })
       .Default(0.5)
       .Seconds()
       .Note("< participant_lease_s")
-      .Doc("Period of the participant announcements that keep the participant lease alive.");
+      .Doc("Period of the participant announcements that keep the participant lease alive. "
+           "From 32 agents on, the processes announce less often, so that the whole network "
+           "receives at most 2000 announcements a second: every 2.08 s at 64 agents (a "
+           "64-agent lock-step ran 1.3 x as fast; docs/BENCHMARKS.md, \"Participant "
+           "announcements at large N\").");
   t.Add("step_timeout_s", [](Config& c) -> auto& { return c.network.step_timeout_s; })
       .Default(2.0)
       .Seconds()

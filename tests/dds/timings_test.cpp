@@ -1,6 +1,6 @@
-// The liveliness and heartbeat timings the DDS adapter derives from the config and the
-// number of agents (dds/node.hpp, EffectiveTimings; docs/BENCHMARKS.md, "Liveliness at
-// large N" and "Heartbeats at large N").
+// The liveliness, heartbeat and announcement timings the DDS adapter derives from the config
+// and the number of agents (dds/node.hpp, EffectiveTimings; docs/BENCHMARKS.md, "Liveliness
+// at large N", "Heartbeats at large N" and "Participant announcements at large N").
 #include <catch2/catch.hpp>
 
 #include <string>
@@ -61,6 +61,27 @@ TEST_CASE("at every N the assertions stay within the budget and at least two per
     CHECK(t.assertions_per_lease <= 8);
     CHECK(t.liveliness_lease_s >= 0.4);
     CHECK(t.assertions_per_lease * pairs / t.liveliness_lease_s <= 4000.0 * (1 + 1e-9));
+  }
+}
+
+TEST_CASE("participant announcements: the configured period up to a budget, then longer with "
+          "a lease as many periods long", "[dds][timings]") {
+  // The defaults: an announcement every 0.5 s, a lease of 5 s (10 periods). 16 agents: 272
+  // pairs, 544 announcements a second, within the 2000 a second budget.
+  const deif::dds::Timings few = deif::dds::EffectiveTimings(WithAgents(16));
+  CHECK(few.participant_announcement_s == Approx(0.5));
+  CHECK(few.participant_lease_s == Approx(5.0));
+  // 64 agents: 4160 pairs; 2000 a second allow one every 2.08 s, and the lease is 10 of them.
+  const deif::dds::Timings many = deif::dds::EffectiveTimings(WithAgents(64));
+  CHECK(many.participant_announcement_s == Approx(2.08));
+  CHECK(many.participant_lease_s == Approx(20.8));
+  for (int n = 2; n <= 256; ++n) {
+    const deif::dds::Timings t = deif::dds::EffectiveTimings(WithAgents(n));
+    const double pairs = static_cast<double>(n) * (n + 1);
+    INFO("N = " << n);
+    CHECK(t.participant_announcement_s >= 0.5);
+    CHECK(pairs / t.participant_announcement_s <= 2000.0 * (1 + 1e-9));
+    CHECK(t.participant_lease_s == Approx(10.0 * t.participant_announcement_s));
   }
 }
 
