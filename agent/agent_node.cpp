@@ -174,6 +174,7 @@ void AgentNode::ReportMatches(double now_s) {
   protocol_.OnPeersMatched(std::min(node_.MatchedWriters(dds::Topic::kContribution),
                                     node_.MatchedReaders(dds::Topic::kContribution)),
                            node_.MatchedWriters(dds::Topic::kRange), now_s);
+  protocol_.OnTargetParticipant(node_.TargetUp(), now_s);
 }
 
 void AgentNode::WriteCounters() const {

@@ -276,12 +276,22 @@ std::int32_t FreshShmParticipantId(int domain_id) {
   return -1;
 }
 
-fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::string& name) {
+// What a participant announces as its user data: the partition of its run.
+std::string RunAnnouncement(const std::string& run_name) { return "deif." + run_name; }
+
+fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::string& name,
+                                         const std::string& run_name) {
   // Start from the factory default, so that an XML profile named by
   // FASTRTPS_DEFAULT_PROFILES_FILE (initial peers, transports: docs/RUNNING.md) applies.
   fdds::DomainParticipantQos qos =
       fdds::DomainParticipantFactory::get_instance()->get_default_participant_qos();
   qos.name(name);
+  // Its run, so that peers know a participant of their own run by its name before any of its
+  // endpoints exist (Node::TargetUp). Not with ros2_naming: ROS 2 keeps its enclave there.
+  if (!config.network.ros2_naming) {
+    const std::string run = RunAnnouncement(run_name);
+    qos.user_data().data_vec(std::vector<eprosima::fastrtps::rtps::octet>(run.begin(), run.end()));
+  }
   const NetworkConfig& network = config.network;
   auto& discovery = qos.wire_protocol().builtin.discovery_config;
   const Timings timings = EffectiveTimings(config);
@@ -339,8 +349,10 @@ void ApplySecurity(fdds::DomainParticipantQos& qos, const Config& config, const 
   }
 }
 
-// The participant listener of a secure node: the partitions of every remote writer as
-// first discovered, and where the authentication with every remote participant stands.
+// The participant listener of every node: which participants of the run are up (by the
+// name and the run each announces: ParticipantQos), and, when secure, the partitions of
+// every remote writer as first discovered and where the authentication with every remote
+// participant stands.
 //
 // Partitions: Fast DDS calls on_publisher_discovery before it matches the writer with any
 // reader, so the binding exists before a sample can arrive. A writer announced again with
@@ -352,7 +364,7 @@ void ApplySecurity(fdds::DomainParticipantQos& qos, const Config& config, const 
 // for good when it discovers two new participants at once on two receive threads (shared
 // scratch data in its security manager, docs/FASTDDS_NOTES.md). Neither side then reports an
 // outcome; Node recreates its participant when it sees one (AwaitAuthentication).
-class SecureListener final : public fdds::DomainParticipantListener {
+class ParticipantListener final : public fdds::DomainParticipantListener {
  public:
   using Guid = eprosima::fastrtps::rtps::GUID_t;
 
@@ -376,11 +388,17 @@ class SecureListener final : public fdds::DomainParticipantListener {
       if (!peer.seen) peer.discovered = Clock::now();
       peer.seen = true;
       peer.gone = false;
+      const auto& data = info.info.m_userData.data_vec();
+      peer.watched = info.info.m_participantName.to_string() == watched_name_ &&
+                     std::string(data.begin(), data.end()) == watched_run_;
       last_discovery_ = Clock::now();
     } else if (info.status == Info::REMOVED_PARTICIPANT ||
                info.status == Info::DROPPED_PARTICIPANT) {
       peers_[info.info.m_guid].gone = true;
     }
+    int up = 0;
+    for (const auto& [guid, peer] : peers_) up += peer.watched && !peer.gone ? 1 : 0;
+    watched_up_.store(up);
   }
 
   void onParticipantAuthentication(fdds::DomainParticipant*,
@@ -417,10 +435,18 @@ class SecureListener final : public fdds::DomainParticipantListener {
     }
     return p;
   }
+  // Watch for remote participants named `name` that announce the run `run` (before the
+  // participant exists); WatchedUp() says whether one is up, without a lock.
+  void Watch(const std::string& name, const std::string& run) {
+    watched_name_ = name;
+    watched_run_ = run;
+  }
+  bool WatchedUp() const { return watched_up_.load() > 0; }
   // Forgets the participants (a new local participant authenticates afresh).
   void ResetPeers() {
     std::lock_guard<std::mutex> lock(mutex_);
     peers_.clear();
+    watched_up_.store(0);
     last_discovery_ = Clock::time_point{};
   }
 
@@ -434,7 +460,10 @@ class SecureListener final : public fdds::DomainParticipantListener {
     bool settled = false;
     bool gone = false;
     Clock::time_point discovered{};
+    bool watched = false;  // its name and announced run are the watched ones (Watch)
   };
+  std::string watched_name_, watched_run_;  // set before the participant exists
+  std::atomic<int> watched_up_{0};
   mutable std::mutex mutex_;
   std::map<protocol::SenderKey, Binding> bindings_;
   std::map<Guid, Peer> peers_;
@@ -560,7 +589,7 @@ constexpr int kMaxAuthenticationRestarts = 5;
 // Waits until every participant discovered so far has an authentication outcome and no new
 // one appeared for a while (true), or one has had none for kStall (false: the handshake
 // stalled). Bounded: after kLongest it goes on with what it has.
-bool AwaitAuthentication(const SecureListener& listener, const Config& config) {
+bool AwaitAuthentication(const ParticipantListener& listener, const Config& config) {
   const auto start = Clock::now();
   const auto as_duration = [](double s) {
     return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
@@ -572,7 +601,7 @@ bool AwaitAuthentication(const SecureListener& listener, const Config& config) {
   const auto longest = as_duration(15.0);
   while (Clock::now() - start < longest) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    const SecureListener::Progress p = listener.Check(stall);
+    const ParticipantListener::Progress p = listener.Check(stall);
     if (p.stalled > 0) return false;
     const auto now = Clock::now();
     if (p.pending == 0 && now - start >= least && now - p.last_discovery >= quiet) return true;
@@ -613,7 +642,7 @@ struct Node::Impl {
   std::map<Topic, std::string> writer_sub_partitions, reader_sub_partitions;  // SetSubPartitions
   bool passive = false;  // MakePassive(): no writer, ever
   bool secure = false;   // network.security.enabled
-  SecureListener secure_listener;  // the participant's listener when secure
+  ParticipantListener participant_listener;  // the participant's listener when secure
   int authentication_restarts = 0;
   AgentIdFilterFactory filter_factory;  // registered with the participant
   bool filters_registered = true;
@@ -639,29 +668,31 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
   Impl& d = *impl_;
   d.run_name = run_name;
   d.secure = config.network.security.enabled;
+  if (!config.network.ros2_naming) d.participant_listener.Watch("target", RunAnnouncement(run_name));
   InstallDdsLog();
   if (d.secure) {
-    fdds::DomainParticipantQos qos = ParticipantQos(config, participant_name);
+    fdds::DomainParticipantQos qos = ParticipantQos(config, participant_name, run_name);
     ApplySecurity(qos, config, participant_name);
     auto* factory = fdds::DomainParticipantFactory::get_instance();
     // No status through this listener (StatusMask::none): only discovery callbacks.
-    d.participant = factory->create_participant(config.network.domain_id, qos, &d.secure_listener,
+    d.participant = factory->create_participant(config.network.domain_id, qos, &d.participant_listener,
                                                 fdds::StatusMask::none());
-    // Before any endpoint exists: a handshake that stalls (SecureListener) costs a new
+    // Before any endpoint exists: a handshake that stalls (ParticipantListener) costs a new
     // participant, a few seconds, and nothing else.
-    while (d.participant != nullptr && !AwaitAuthentication(d.secure_listener, config) &&
+    while (d.participant != nullptr && !AwaitAuthentication(d.participant_listener, config) &&
            d.authentication_restarts < kMaxAuthenticationRestarts) {
       factory->delete_participant(d.participant);
-      d.secure_listener.ResetPeers();
+      d.participant_listener.ResetPeers();
       ++d.authentication_restarts;
       // Not at once: participants re-created together would stall each other again.
       std::this_thread::sleep_for(RestartBackoff(d.authentication_restarts, config.agents.count));
-      d.participant = factory->create_participant(config.network.domain_id, qos, &d.secure_listener,
+      d.participant = factory->create_participant(config.network.domain_id, qos, &d.participant_listener,
                                                   fdds::StatusMask::none());
     }
   } else {
     d.participant = fdds::DomainParticipantFactory::get_instance()->create_participant(
-        config.network.domain_id, ParticipantQos(config, participant_name));
+        config.network.domain_id, ParticipantQos(config, participant_name, run_name),
+        &d.participant_listener, fdds::StatusMask::none());
   }
   if (d.participant == nullptr) {
     throw std::runtime_error("cannot create a DDS participant on domain " +
@@ -1017,7 +1048,7 @@ bool Node::Secure() const { return impl_->secure; }
 
 std::optional<AgentId> Node::AuthorizedAgent(const protocol::SenderKey& writer) const {
   if (!impl_->secure) return std::nullopt;
-  const auto partitions = impl_->secure_listener.Of(writer);
+  const auto partitions = impl_->participant_listener.Of(writer);
   if (!partitions) return std::nullopt;
   return AuthorizedAgentOf(*partitions, impl_->run_name);
 }
@@ -1032,6 +1063,8 @@ void Node::Abandon() {
   Impl* leaked = impl_.release();  // DDS threads may still use it until the process ends
   (void)leaked;
 }
+
+bool Node::TargetUp() const { return impl_->participant_listener.WatchedUp(); }
 
 bool Node::ReceiveStuck() { return g_receive_stuck.load(); }
 

@@ -114,6 +114,10 @@ class Node {
   // PDP.cpp:1140 when a participant says goodbye while the peer's lease check of it runs;
   // when a whole run ends at once that happened to 4 of 64 agents (docs/FASTDDS_NOTES.md).
   void Abandon();
+  // Whether the run's target is up: a participant named "target" that announced this run
+  // is discovered and not gone, whether or not its endpoints exist yet (a target of a large
+  // run takes seconds to make them). Not with ros2_naming (false).
+  bool TargetUp() const;
   // True once a shared-memory receive thread of this process is stuck for good on a message
   // of a dead writer whose segment is gone (Fast DDS 2.9.1; docs/FASTDDS_NOTES.md, "A
   // receive loop stuck on a dead writer's segment"): the process hears nothing more on that

@@ -285,12 +285,22 @@ void AgentProtocol::AdoptHeldTarget(double now_s) {
   }
 }
 
+void AgentProtocol::SetTargetUp(bool range_writer, bool participant, double now_s) {
+  // Before the first range, a target of this run that is up is waiting for the other agents
+  // (docs/PROTOCOL.md, "An agent"): the patience for the first range counts from when none
+  // is up any more, not from this agent's start.
+  const bool was_up = TargetUp();
+  range_writer_matched_ = range_writer;
+  target_participant_up_ = participant;
+  if (started_ && !ever_opened_ && was_up && !TargetUp()) last_target_contact_s_ = now_s;
+}
+
+void AgentProtocol::OnTargetParticipant(bool up, double now_s) {
+  SetTargetUp(range_writer_matched_, up, now_s);
+}
+
 void AgentProtocol::OnPeersMatched(int matched, int range_writers, double now_s) {
-  // Before the first range, a matched range writer is a target of this run that is up and
-  // waiting for the other agents (docs/PROTOCOL.md, "An agent"): the patience for the first
-  // range counts from when none is matched any more, not from this agent's start.
-  if (started_ && !ever_opened_ && target_matched_ && range_writers < 1) last_target_contact_s_ = now_s;
-  target_matched_ = range_writers > 0;
+  SetTargetUp(range_writers > 0, target_participant_up_, now_s);
   // A match is known to each side only from the other side's announcement: the target's
   // writer may have matched our range reader while our reader has not yet matched the
   // writer, and a range sent then is dropped here until a discovery repair (1 s and more).
@@ -309,7 +319,7 @@ void AgentProtocol::OnTimer(double now_s) {
   ConfirmLapses(now_s);
   Advance(now_s);
   if (finished_) return;
-  if (!ever_opened_ && target_matched_) last_target_contact_s_ = now_s;  // waiting for the others
+  if (!ever_opened_ && TargetUp()) last_target_contact_s_ = now_s;  // waiting for the others
   const double silent_s = now_s - last_target_contact_s_;
   if (silent_s < Patience()) return;
   if (!ever_opened_) {
@@ -330,7 +340,7 @@ void AgentProtocol::OnTimer(double now_s) {
 std::optional<double> AgentProtocol::NextDeadline() const {
   if (finished_ || !started_) return std::nullopt;
   double t = last_target_contact_s_ + Patience();
-  if (target_silent_logged_ || (!ever_opened_ && target_matched_)) t = std::numeric_limits<double>::infinity();
+  if (target_silent_logged_ || (!ever_opened_ && TargetUp())) t = std::numeric_limits<double>::infinity();
   if (open_) {
     t = std::min(t, records_.rbegin()->second.deadline_s);
   } else if (RealTime() && clock_sync_) {

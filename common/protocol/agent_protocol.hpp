@@ -114,6 +114,10 @@ class AgentProtocol {
   // can start only when every agent can hear every other and hears the target
   // (docs/PROTOCOL.md, "Start").
   void OnPeersMatched(int matched, int range_writers, double now_s);
+  // Whether the transport sees the run's target process up, before any of its endpoints
+  // may exist (a target of a large run takes seconds to make them). Before its first range
+  // an agent waits for one while one is up: by this, or by a matched range writer.
+  void OnTargetParticipant(bool up, double now_s);
   // The transport knows that the writer `from` may not speak for the agent id `claimed`
   // (with DDS Security its permissions name another id: docs/SECURITY.md): the message is
   // counted as rejected, reason not_authorised, and never used.
@@ -259,7 +263,11 @@ class AgentProtocol {
   // history_steps per writer.
   std::map<SenderKey, std::deque<RangeMsg>> held_target_ranges_;
   int matched_ = -1;
-  bool target_matched_ = false;  // the range reader has matched a range writer (OnPeersMatched)
+  // A target of this run is up (before the first range: docs/PROTOCOL.md, "An agent").
+  bool range_writer_matched_ = false;  // the range reader has matched a writer (OnPeersMatched)
+  bool target_participant_up_ = false;  // OnTargetParticipant
+  bool TargetUp() const { return range_writer_matched_ || target_participant_up_; }
+  void SetTargetUp(bool range_writer, bool participant, double now_s);
   double last_target_contact_s_ = 0.0;
   bool target_silent_logged_ = false;
 };

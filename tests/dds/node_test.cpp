@@ -180,3 +180,21 @@ TEST_CASE("a loop of shared-memory receive errors marks the process deaf; a few 
   Log::Flush();
   CHECK(deif::dds::Node::ReceiveStuck());
 }
+
+TEST_CASE("a node sees its run's target up before the target has any endpoint, and not another "
+          "run's; nor once the target is gone", "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  deif::dds::Node agent(config, "agent-1", "node_target_a");
+  deif::dds::Node stranger(config, "agent-1", "node_target_b");
+  CHECK_FALSE(agent.TargetUp());
+  {
+    deif::dds::Node target(config, "target", "node_target_a");  // no writer, no reader
+    deif::dds::Node not_a_target(config, "observer-1", "node_target_a");
+    CHECK(Within(10.0, agent, [&] { return agent.TargetUp(); }));
+    // The other run's agent, on the same domain, discovers it too, and does not take it.
+    CHECK_FALSE(Within(1.0, stranger, [&] { return stranger.TargetUp(); }));
+  }
+  // Deleted: it said goodbye.
+  CHECK(Within(10.0, agent, [&] { return !agent.TargetUp(); }));
+}

@@ -961,20 +961,28 @@ TEST_CASE("A restarted agent that appends to its rows never writes a step at or 
 
 namespace {
 
-// When an agent that never gets a range gives up (its exit code), given what its range
-// reader has matched: `matched_until` < 0, never a range writer; else one from the start until
-// then. Timers every 0.5 s up to 200 s; returns (the time it finished, its exit code), or
-// (inf, -1) if it never did.
-std::pair<double, int> GivesUpAt(double matched_until) {
+// When an agent that never gets a range gives up (its exit code), given what it sees of the
+// target: `up_until` < 0, nothing; else, from the start until then, a range writer matched by
+// its range reader (`by_participant` false) or the target's participant up without any
+// endpoint (true). Timers every 0.5 s up to 200 s; returns (the time it finished, its exit
+// code), or (inf, -1) if it never did.
+std::pair<double, int> GivesUpAt(double up_until, bool by_participant = false) {
   const deif::Config config = deif::ParseConfig(
       "agents: {count: 3}\nnetwork: {start_timeout_s: 10, step_timeout_s: 2}\n", "patience_test");
   protocol::AgentProtocol::Options options;
   options.run = protocol::RunTokenOf("patience");
   protocol::AgentProtocol agent(config, 1, options);
   agent.Start(0.0);
-  if (matched_until >= 0.0) agent.OnPeersMatched(3, 1, 0.0);
+  const auto see = [&](bool up, double t) {
+    if (by_participant) {
+      agent.OnTargetParticipant(up, t);
+    } else {
+      agent.OnPeersMatched(3, up ? 1 : 0, t);
+    }
+  };
+  if (up_until >= 0.0) see(true, 0.0);
   for (double t = 0.5; t <= 200.0; t += 0.5) {
-    if (matched_until >= 0.0 && std::abs(t - matched_until) < 1e-9) agent.OnPeersMatched(3, 0, t);
+    if (up_until >= 0.0 && std::abs(t - up_until) < 1e-9) see(false, t);
     agent.OnTimer(t);
     for (const auto& action : agent.TakeActions()) {
       if (const auto* f = std::get_if<protocol::agent_action::Finish>(&action)) return {t, f->exit_code};
@@ -985,8 +993,8 @@ std::pair<double, int> GivesUpAt(double matched_until) {
 
 }  // namespace
 
-TEST_CASE("Before its first range an agent waits while a target of its run is matched, and gives "
-          "up start_timeout_s + step_timeout_s after none is", "[protocol]") {
+TEST_CASE("Before its first range an agent waits while a target of its run is up, and gives up "
+          "start_timeout_s + step_timeout_s after none is", "[protocol]") {
   // GIVEN start_timeout_s 10 and step_timeout_s 2 (a patience of 12 s before the first range)
   // WHEN no range writer is ever matched, THEN the agent gives up 12 s after its start
   const auto alone = GivesUpAt(-1.0);
@@ -998,4 +1006,9 @@ TEST_CASE("Before its first range an agent waits while a target of its run is ma
   const auto waited = GivesUpAt(100.0);
   CHECK(waited.first == 112.0);
   CHECK(waited.second == protocol::kExitRuntimeError);
+  // WHEN only the target's process is seen for 100 s (a target of a large run making its
+  // writers), THEN the same
+  const auto seen = GivesUpAt(100.0, /*by_participant=*/true);
+  CHECK(seen.first == 112.0);
+  CHECK(seen.second == protocol::kExitRuntimeError);
 }
