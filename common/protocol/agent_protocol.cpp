@@ -159,6 +159,12 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
     peer.last_position = std::make_pair(msg.step - 1, msg.p_sensor);
   }
   peer.last_step = std::max(peer.last_step, msg.step);
+  if (!ever_opened_ && !run_begun_) {
+    // A peer has a step: the target has begun without a range for us, so a target that is up
+    // no longer means "wait" (WaitingForTarget); the patience counts from now.
+    run_begun_ = true;
+    last_target_contact_s_ = now_s;
+  }
 
   Held held;
   held.msg = msg;
@@ -289,10 +295,10 @@ void AgentProtocol::SetTargetUp(bool range_writer, bool participant, double now_
   // Before the first range, a target of this run that is up is waiting for the other agents
   // (docs/PROTOCOL.md, "An agent"): the patience for the first range counts from when none
   // is up any more, not from this agent's start.
-  const bool was_up = TargetUp();
+  const bool was_waiting = WaitingForTarget();
   range_writer_matched_ = range_writer;
   target_participant_up_ = participant;
-  if (started_ && !ever_opened_ && was_up && !TargetUp()) last_target_contact_s_ = now_s;
+  if (started_ && was_waiting && !WaitingForTarget()) last_target_contact_s_ = now_s;
 }
 
 void AgentProtocol::OnTargetParticipant(bool up, double now_s) {
@@ -319,10 +325,15 @@ void AgentProtocol::OnTimer(double now_s) {
   ConfirmLapses(now_s);
   Advance(now_s);
   if (finished_) return;
-  if (!ever_opened_ && TargetUp()) last_target_contact_s_ = now_s;  // waiting for the others
+  if (WaitingForTarget()) last_target_contact_s_ = now_s;  // it waits for the other agents
   const double silent_s = now_s - last_target_contact_s_;
   if (silent_s < Patience()) return;
-  if (!ever_opened_) {
+  if (!ever_opened_ && run_begun_) {
+    Finish(kExitRuntimeError, "no range from the target within " + std::to_string(Patience()) +
+                                  " s (network.start_timeout_s + step_timeout_s) of the run's "
+                                  "start, while the peers step: the target's ranges do not "
+                                  "reach this agent");
+  } else if (!ever_opened_) {
     Finish(kExitRuntimeError, "no range from the target within " + std::to_string(Patience()) +
                                   " s (network.start_timeout_s + step_timeout_s); is a target "
                                   "of this run up?");
@@ -340,7 +351,7 @@ void AgentProtocol::OnTimer(double now_s) {
 std::optional<double> AgentProtocol::NextDeadline() const {
   if (finished_ || !started_) return std::nullopt;
   double t = last_target_contact_s_ + Patience();
-  if (target_silent_logged_ || (!ever_opened_ && TargetUp())) t = std::numeric_limits<double>::infinity();
+  if (target_silent_logged_ || WaitingForTarget()) t = std::numeric_limits<double>::infinity();
   if (open_) {
     t = std::min(t, records_.rbegin()->second.deadline_s);
   } else if (RealTime() && clock_sync_) {

@@ -263,10 +263,14 @@ class AgentProtocol {
   // history_steps per writer.
   std::map<SenderKey, std::deque<RangeMsg>> held_target_ranges_;
   int matched_ = -1;
-  // A target of this run is up (before the first range: docs/PROTOCOL.md, "An agent").
+  // Before the first range (docs/PROTOCOL.md, "An agent"): a target of this run is up, and
+  // no peer has a step yet, so the target is still waiting for the agents.
   bool range_writer_matched_ = false;  // the range reader has matched a writer (OnPeersMatched)
   bool target_participant_up_ = false;  // OnTargetParticipant
-  bool TargetUp() const { return range_writer_matched_ || target_participant_up_; }
+  bool run_begun_ = false;              // a peer's valid contribution arrived
+  bool WaitingForTarget() const {
+    return !ever_opened_ && !run_begun_ && (range_writer_matched_ || target_participant_up_);
+  }
   void SetTargetUp(bool range_writer, bool participant, double now_s);
   double last_target_contact_s_ = 0.0;
   bool target_silent_logged_ = false;

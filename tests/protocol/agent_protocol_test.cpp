@@ -7,6 +7,7 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <optional>
 #include <string>
 #include <variant>
 #include <vector>
@@ -966,13 +967,46 @@ namespace {
 // its range reader (`by_participant` false) or the target's participant up without any
 // endpoint (true). Timers every 0.5 s up to 200 s; returns (the time it finished, its exit
 // code), or (inf, -1) if it never did.
-std::pair<double, int> GivesUpAt(double up_until, bool by_participant = false) {
+// With `peer_step_at` >= 0, a peer's contribution to step 1 arrives then (the target has
+// begun without a range for this agent).
+std::pair<double, int> GivesUpAt(double up_until, bool by_participant = false,
+                                 double peer_step_at = -1.0) {
   const deif::Config config = deif::ParseConfig(
       "agents: {count: 3}\nnetwork: {start_timeout_s: 10, step_timeout_s: 2}\n", "patience_test");
   protocol::AgentProtocol::Options options;
   options.run = protocol::RunTokenOf("patience");
   protocol::AgentProtocol agent(config, 1, options);
   agent.Start(0.0);
+  // Agent 2's contribution to step 1, made by an agent 2 that got its range.
+  protocol::AgentProtocol peer(config, 2, options);
+  peer.Start(0.0);
+  Vector2 peer_start = Vector2::Zero();
+  for (const auto& action : peer.TakeActions()) {
+    if (const auto* state = std::get_if<protocol::agent_action::PublishState>(&action)) {
+      peer_start = state->msg.position_m;
+    }
+  }
+  protocol::RangeMsg range;
+  range.run = options.run;
+  range.agent_id = 2;
+  range.step = 1;
+  range.measured = true;
+  range.range_m = 2.0;
+  range.variance_m2 = 5.3e-4;
+  range.p_sensor = peer_start;
+  range.roll_call = {1, 2, 3};
+  protocol::SenderKey target{};
+  target[0] = 7;
+  peer.OnRange(range, target, 0.01);
+  std::optional<protocol::ContributionMsg> peer_contribution;
+  for (const auto& action : peer.TakeActions()) {
+    if (const auto* c = std::get_if<protocol::agent_action::PublishContribution>(&action)) {
+      peer_contribution = c->msg;
+    }
+  }
+  REQUIRE(peer_contribution);
+  protocol::SenderKey peer_key{};
+  peer_key[0] = 2;
   const auto see = [&](bool up, double t) {
     if (by_participant) {
       agent.OnTargetParticipant(up, t);
@@ -983,6 +1017,9 @@ std::pair<double, int> GivesUpAt(double up_until, bool by_participant = false) {
   if (up_until >= 0.0) see(true, 0.0);
   for (double t = 0.5; t <= 200.0; t += 0.5) {
     if (up_until >= 0.0 && std::abs(t - up_until) < 1e-9) see(false, t);
+    if (peer_step_at >= 0.0 && std::abs(t - peer_step_at) < 1e-9) {
+      agent.OnContribution(*peer_contribution, peer_key, t);
+    }
     agent.OnTimer(t);
     for (const auto& action : agent.TakeActions()) {
       if (const auto* f = std::get_if<protocol::agent_action::Finish>(&action)) return {t, f->exit_code};
@@ -993,8 +1030,9 @@ std::pair<double, int> GivesUpAt(double up_until, bool by_participant = false) {
 
 }  // namespace
 
-TEST_CASE("Before its first range an agent waits while a target of its run is up, and gives up "
-          "start_timeout_s + step_timeout_s after none is", "[protocol]") {
+TEST_CASE("Before its first range an agent waits while a target of its run is up and no peer has "
+          "a step, and gives up start_timeout_s + step_timeout_s after that ends",
+          "[protocol]") {
   // GIVEN start_timeout_s 10 and step_timeout_s 2 (a patience of 12 s before the first range)
   // WHEN no range writer is ever matched, THEN the agent gives up 12 s after its start
   const auto alone = GivesUpAt(-1.0);
@@ -1011,4 +1049,9 @@ TEST_CASE("Before its first range an agent waits while a target of its run is up
   const auto seen = GivesUpAt(100.0, /*by_participant=*/true);
   CHECK(seen.first == 112.0);
   CHECK(seen.second == protocol::kExitRuntimeError);
+  // WHEN the target stays up but a peer's contribution to step 1 arrives at 50 s (the run
+  // has begun, and this agent's ranges do not reach it), THEN it gives up 12 s after that
+  const auto begun = GivesUpAt(150.0, /*by_participant=*/true, /*peer_step_at=*/50.0);
+  CHECK(begun.first == 62.0);
+  CHECK(begun.second == protocol::kExitRuntimeError);
 }
