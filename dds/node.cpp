@@ -99,9 +99,9 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
 constexpr double kLivelinessBudgetPerS = 4000.0;
 constexpr double kHeartbeatBudgetPerS = 20000.0;
 // Participant announcements grow as N^2 too: each process's reaches every other, a wake-up
-// of a receive thread each. At N = 64 the default 0.5 s period made 8320 a second; at 2 s a
-// 64-agent lock-step ran 8.5 steps/s against 6.4, with 15 % less CPU (docs/BENCHMARKS.md,
-// "Participant announcements at large N").
+// of a receive thread each. At N = 64 the default 0.5 s period made 8320 a second; within
+// this budget (2.08 s) a 64-agent lock-step ran 7.6 steps/s against 5.8, with 23 % less CPU
+// a step (docs/BENCHMARKS.md, "Participant announcements at large N").
 constexpr double kAnnouncementBudgetPerS = 2000.0;
 
 }  // namespace
