@@ -908,6 +908,34 @@ TEST_CASE("After a freeze longer than the history, a backlog of contributions th
 
 namespace {
 
+// Starts `agent` (of run `run`, in a network of agents 1..3) and hands it the target's range
+// of step 1, measured where it starts. Returns the actions of both.
+std::vector<protocol::AgentAction> StartWithFirstRange(protocol::AgentProtocol& agent,
+                                                       protocol::RunToken run) {
+  agent.Start(0.0);
+  std::vector<protocol::AgentAction> actions = agent.TakeActions();
+  Vector2 start = Vector2::Zero();
+  for (const auto& action : actions) {
+    if (const auto* state = std::get_if<protocol::agent_action::PublishState>(&action)) {
+      start = state->msg.position_m;
+    }
+  }
+  protocol::RangeMsg range;
+  range.run = run;
+  range.agent_id = agent.id();
+  range.step = 1;
+  range.measured = true;
+  range.range_m = 2.0;
+  range.variance_m2 = 5.3e-4;
+  range.p_sensor = start;
+  range.roll_call = {1, 2, 3};
+  protocol::SenderKey target{};
+  target[0] = 7;
+  agent.OnRange(range, target, 0.01);
+  for (auto& action : agent.TakeActions()) actions.push_back(std::move(action));
+  return actions;
+}
+
 // What an agent with options `resume_after` writes when the first range it hears is the
 // target's range of step 1 measured for a predecessor at the same starting position (from
 // the target's history), and then nothing until long after that step's deadline.
@@ -918,28 +946,11 @@ std::vector<StepIndex> RowsAfterAStaleFirstRange(StepIndex resume_after) {
   options.run = protocol::RunTokenOf("resume");
   options.resume_after = resume_after;
   protocol::AgentProtocol agent(config, 2, options);
-  agent.Start(0.0);
-  Vector2 start = Vector2::Zero();
-  for (const auto& action : agent.TakeActions()) {
-    if (const auto* state = std::get_if<protocol::agent_action::PublishState>(&action)) {
-      start = state->msg.position_m;
-    }
-  }
-  protocol::RangeMsg range;
-  range.run = options.run;
-  range.agent_id = 2;
-  range.step = 1;
-  range.measured = true;
-  range.range_m = 2.0;
-  range.variance_m2 = 5.3e-4;
-  range.p_sensor = start;  // where this process starts, as its predecessor did
-  range.roll_call = {1, 2, 3};
-  protocol::SenderKey target{};
-  target[0] = 7;
-  agent.OnRange(range, target, 0.01);
+  std::vector<protocol::AgentAction> actions = StartWithFirstRange(agent, options.run);
   agent.OnTimer(1.0);
+  for (auto& action : agent.TakeActions()) actions.push_back(std::move(action));
   std::vector<StepIndex> written;
-  for (const auto& action : agent.TakeActions()) {
+  for (const auto& action : actions) {
     if (const auto* row = std::get_if<protocol::agent_action::WriteRow>(&action)) {
       written.push_back(row->row.step);
     }
@@ -979,27 +990,8 @@ std::pair<double, int> GivesUpAt(double up_until, bool by_participant = false,
   agent.Start(0.0);
   // Agent 2's contribution to step 1, made by an agent 2 that got its range.
   protocol::AgentProtocol peer(config, 2, options);
-  peer.Start(0.0);
-  Vector2 peer_start = Vector2::Zero();
-  for (const auto& action : peer.TakeActions()) {
-    if (const auto* state = std::get_if<protocol::agent_action::PublishState>(&action)) {
-      peer_start = state->msg.position_m;
-    }
-  }
-  protocol::RangeMsg range;
-  range.run = options.run;
-  range.agent_id = 2;
-  range.step = 1;
-  range.measured = true;
-  range.range_m = 2.0;
-  range.variance_m2 = 5.3e-4;
-  range.p_sensor = peer_start;
-  range.roll_call = {1, 2, 3};
-  protocol::SenderKey target{};
-  target[0] = 7;
-  peer.OnRange(range, target, 0.01);
   std::optional<protocol::ContributionMsg> peer_contribution;
-  for (const auto& action : peer.TakeActions()) {
+  for (const auto& action : StartWithFirstRange(peer, options.run)) {
     if (const auto* c = std::get_if<protocol::agent_action::PublishContribution>(&action)) {
       peer_contribution = c->msg;
     }
