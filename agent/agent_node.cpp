@@ -10,6 +10,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "common/protocol/validation.hpp"
+
 namespace deif::agent {
 
 namespace {
@@ -63,6 +65,20 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   // (docs/BENCHMARKS.md, "Readers that want nothing"). Once running, another process that
   // speaks for this id shows in its contributions (agent_id_clash).
   node_.AddReader({dds::Topic::kAgentState, id_});
+  if (config_.network.exchange == ExchangeKind::kTree) {
+    // Relay partitions (docs/SCALING.md): up.<id> holds the batches of this agent's
+    // children, down.<id> its own batches to them; the writer up and the reader down move
+    // to the parent's as the tree changes. It starts as the root of a tree of itself.
+    const std::string self = std::to_string(id_);
+    node_.SetSubPartitions(dds::Topic::kRelayUp, "up.none", "up." + self);
+    node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down.none");
+    node_.AddWriter(dds::Topic::kRelayUp);
+    node_.AddWriter(dds::Topic::kRelayDown);
+    node_.AddReader({dds::Topic::kRelayUp, {}});
+    node_.AddReader({dds::Topic::kRelayDown, {}});
+    tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
+                                                            node_.WriterKey(dds::Topic::kContribution)});
+  }
   if (node_.AuthenticationRestarts() > 0) {
     context_.log->warn("authentication with a peer stalled at start; participant created anew {} "
                        "time(s) (docs/SECURITY.md, \"Start-up\")",
@@ -121,17 +137,24 @@ int AgentNode::Run() {
   protocol_.Start(dds::ToSeconds(dds::Clock::now()));
   for (const dds::Event& event : early_events_) Dispatch(event, dds::ToSeconds(dds::Clock::now()));
   early_events_.clear();
-  Execute(protocol_.TakeActions());
+  Pump();
   context_.log->info("published the initial state; waiting for the target");
 
   while (!stop_requested_ && !protocol_.finished()) {
-    const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
+    std::optional<double> wake = protocol_.NextDeadline();
+    if (tree_) {
+      const std::optional<double> relay = tree_->NextDeadline();
+      if (relay && (!wake || *relay < *wake)) wake = relay;
+    }
+    const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
+    if (tree_) tree_->SetMembers(TreeMembers(), now_s);
     for (const dds::Event& event : events) Dispatch(event, now_s);
     ReportMatches(now_s);
     protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
+    if (tree_) tree_->OnTimer(now_s);
     protocol_.OnTimer(now_s);
-    Execute(protocol_.TakeActions());
+    Pump();
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
   }
   protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
@@ -196,7 +219,16 @@ bool AgentNode::Authorised(AgentId claimed, const protocol::SenderKey& writer) c
 
 void AgentNode::Dispatch(const dds::Event& event, double now_s) {
   if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
+    if (tree_ && range->msg.run == protocol::RunTokenOf(context_.run_name)) {
+      // Only the roll call of a sound range (the protocol counts the others).
+      const char* reason = protocol::ValidateRange(range->msg, config_, id_);
+      if (reason == nullptr || protocol::IsMeasurementReason(reason)) {
+        tree_->OnRollCall(range->msg.step, range->msg.roll_call, now_s);
+      }
+    }
     protocol_.OnRange(range->msg, range->from, now_s);
+  } else if (const auto* batch = std::get_if<dds::Received<protocol::BatchMsg>>(&event)) {
+    if (tree_) tree_->OnBatch(batch->msg, now_s);
   } else if (const auto* c = std::get_if<dds::Received<protocol::ContributionMsg>>(&event)) {
     if (!Authorised(c->msg.agent_id, c->from)) {
       protocol_.OnUnauthorised(c->msg.agent_id, c->from);
@@ -222,7 +254,11 @@ void AgentNode::Execute(std::vector<protocol::AgentAction> actions) {
           using A = std::decay_t<decltype(a)>;
           namespace act = protocol::agent_action;
           if constexpr (std::is_same_v<A, act::PublishContribution>) {
-            node_.Write(a.msg);
+            if (tree_) {
+              tree_->OnOwn(a.msg, dds::ToSeconds(dds::Clock::now()));
+            } else {
+              node_.Write(a.msg);
+            }
           } else if constexpr (std::is_same_v<A, act::PublishState>) {
             node_.Write(a.msg);
           } else if constexpr (std::is_same_v<A, act::WriteRow>) {
@@ -235,6 +271,53 @@ void AgentNode::Execute(std::vector<protocol::AgentAction> actions) {
         },
         action);
   }
+}
+
+void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
+  namespace act = protocol::tree_action;
+  std::vector<protocol::RelayedContribution> deliveries;
+  for (protocol::TreeAction& action : actions) {
+    if (auto* send = std::get_if<act::Send>(&action)) {
+      node_.Write(send->batch);
+    } else if (auto* deliver = std::get_if<act::Deliver>(&action)) {
+      deliveries.push_back(std::move(deliver->item));  // after the sends: relaying first
+    } else if (const auto* reparent = std::get_if<act::Reparent>(&action)) {
+      const std::string parent = reparent->parent ? std::to_string(*reparent->parent) : "none";
+      const std::string self = std::to_string(id_);
+      node_.MoveSubPartitions(dds::Topic::kRelayUp, "up." + parent, "up." + self);
+      node_.MoveSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + parent);
+      context_.log->info("tree exchange: parent now {} ({} members)",
+                         reparent->parent ? "agent " + parent : std::string("none, the root"),
+                         tree_->members().size());
+    } else if (const auto* reject = std::get_if<act::Reject>(&action)) {
+      protocol_.OnRelayRejected(reject->reason, reject->count);
+    }
+  }
+  const double now_s = dds::ToSeconds(dds::Clock::now());
+  for (const protocol::RelayedContribution& item : deliveries) {
+    protocol_.OnContribution(item.msg, item.origin, now_s);
+  }
+}
+
+void AgentNode::Pump() {
+  for (;;) {
+    std::vector<protocol::AgentAction> actions = protocol_.TakeActions();
+    std::vector<protocol::TreeAction> relay;
+    if (tree_) relay = tree_->TakeActions();
+    if (actions.empty() && relay.empty()) return;
+    Execute(std::move(actions));
+    ExecuteRelay(std::move(relay));
+  }
+}
+
+std::set<AgentId> AgentNode::TreeMembers() const {
+  std::set<AgentId> members;
+  for (AgentId id : node_.AgentsUp()) {
+    if (id >= 1 && id <= static_cast<AgentId>(config_.agents.count)) members.insert(id);
+  }
+  for (AgentId lost : protocol_.LostPeers()) members.erase(lost);
+  members.insert(id_);
+  return members;
 }
 
 bool AgentNode::LeaveQuietly() {

@@ -7,9 +7,12 @@
 #include <atomic>
 #include <cstdint>
 #include <optional>
+#include <set>
+#include <vector>
 
 #include "common/artefacts/artefacts.hpp"
 #include "common/protocol/agent_protocol.hpp"
+#include "common/protocol/tree_exchange.hpp"
 #include "dds/application.hpp"
 #include "dds/node.hpp"
 
@@ -32,6 +35,13 @@ class AgentNode : public dds::Application {
   // when its permissions name that id (docs/SECURITY.md).
   bool Authorised(AgentId claimed, const protocol::SenderKey& writer) const;
   void Execute(std::vector<protocol::AgentAction> actions);
+  // Carries out the tree exchange's actions; its deliveries last, after its sends.
+  void ExecuteRelay(std::vector<protocol::TreeAction> actions);
+  // Carries out what the protocol and the tree exchange ask until neither asks more.
+  void Pump();
+  // The members the tree is made of (network.exchange: tree): the agents of the run whose
+  // participants are up, less those the protocol saw lost, and this one.
+  std::set<AgentId> TreeMembers() const;
   // Ends Run() when this process can no longer hear (Node::ReceiveStuck): restarts it in
   // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();
@@ -47,6 +57,7 @@ class AgentNode : public dds::Application {
   const std::uint64_t instance_token_;
   dds::Node node_;
   protocol::AgentProtocol protocol_;
+  std::optional<protocol::TreeExchange> tree_;  // network.exchange: tree
   std::optional<AgentCsv> csv_;
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;

@@ -150,4 +150,35 @@ protocol::StateMsg FromIdl(const deif_msgs::AgentState& m) {
   return out;
 }
 
+deif_msgs::ContributionBatch ToIdl(const protocol::BatchMsg& m) {
+  deif_msgs::ContributionBatch out;
+  out.agent_id(m.sender_id);
+  out.run_token(m.run);
+  out.step(m.step);
+  out.items().reserve(m.items.size());
+  for (const protocol::RelayedContribution& item : m.items) {
+    deif_msgs::RelayedContribution r;
+    std::copy(item.origin.begin(), item.origin.end(), r.origin_writer().begin());
+    r.content(ToIdl(item.msg));
+    out.items().push_back(std::move(r));
+  }
+  return out;
+}
+
+protocol::BatchMsg FromIdl(const deif_msgs::ContributionBatch& m, bool down) {
+  protocol::BatchMsg out;
+  out.sender_id = m.agent_id();
+  out.run = m.run_token();
+  out.step = m.step();
+  out.down = down;
+  out.items.reserve(m.items().size());
+  for (const deif_msgs::RelayedContribution& r : m.items()) {
+    protocol::RelayedContribution item;
+    std::copy(r.origin_writer().begin(), r.origin_writer().end(), item.origin.begin());
+    item.msg = FromIdl(r.content());
+    out.items.push_back(std::move(item));
+  }
+  return out;
+}
+
 }  // namespace deif::dds

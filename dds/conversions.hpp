@@ -12,11 +12,14 @@ deif_msgs::Truth ToIdl(const protocol::TruthMsg& m);
 deif_msgs::Range ToIdl(const protocol::RangeMsg& m);
 deif_msgs::Contribution ToIdl(const protocol::ContributionMsg& m);
 deif_msgs::AgentState ToIdl(const protocol::StateMsg& m);
+deif_msgs::ContributionBatch ToIdl(const protocol::BatchMsg& m);
 
 protocol::TruthMsg FromIdl(const deif_msgs::Truth& m);
 protocol::RangeMsg FromIdl(const deif_msgs::Range& m);
 // A basis_dim other than 2 or 4 gives an empty basis (rejected by validation, never fused).
 protocol::ContributionMsg FromIdl(const deif_msgs::Contribution& m);
 protocol::StateMsg FromIdl(const deif_msgs::AgentState& m);
+// down: the batch came on deif/relay_down (BatchMsg::down is not on the wire).
+protocol::BatchMsg FromIdl(const deif_msgs::ContributionBatch& m, bool down);
 
 }  // namespace deif::dds

@@ -70,6 +70,7 @@ struct TopicQos {
   int writer_depth;         // per instance (agent id)
   int reader_depth;
   bool manual_liveliness;   // MANUAL_BY_TOPIC with network.liveliness_lease_s
+  bool sized_by_use = false;  // samples allocated as large as they are, not as the type's bound
 };
 
 TopicQos QosOf(Topic topic, const NetworkConfig& network) {
@@ -84,6 +85,9 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
       return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, true};
     case Topic::kAgentState:  // the latest state of every agent, also for a restarted target
       return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, 1, 4, true};
+    case Topic::kRelayUp:    // what a relay's new parent or child missed, up to the history
+    case Topic::kRelayDown:  // (docs/SCALING.md); a batch's bound is 256 contributions
+      return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, false, true};
   }
   return {fdds::VOLATILE_DURABILITY_QOS, 1, 1, false};
 }
@@ -154,6 +158,9 @@ void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config
         DdsDuration(t.liveliness_lease_s / t.assertions_per_lease);
   }
   qos.data_sharing().off();
+  if (spec.sized_by_use) {
+    qos.endpoint().history_memory_policy = eprosima::fastrtps::rtps::DYNAMIC_REUSABLE_MEMORY_MODE;
+  }
 }
 
 fdds::DataWriterQos WriterQos(Topic topic, const Config& config) {
@@ -389,8 +396,10 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
       peer.seen = true;
       peer.gone = false;
       const auto& data = info.info.m_userData.data_vec();
-      peer.watched = info.info.m_participantName.to_string() == watched_name_ &&
-                     std::string(data.begin(), data.end()) == watched_run_;
+      const std::string name = info.info.m_participantName.to_string();
+      const bool of_run = !watched_run_.empty() && std::string(data.begin(), data.end()) == watched_run_;
+      peer.watched = name == watched_name_ && of_run;
+      peer.agent = of_run ? AgentIdOfName(name) : 0;
       last_discovery_ = Clock::now();
     } else if (info.status == Info::REMOVED_PARTICIPANT ||
                info.status == Info::DROPPED_PARTICIPANT) {
@@ -442,6 +451,15 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     watched_run_ = run;
   }
   bool WatchedUp() const { return watched_up_.load() > 0; }
+  // The ids of the participants named agent-<id> that announced the watched run and are up.
+  std::set<AgentId> AgentsUp() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::set<AgentId> up;
+    for (const auto& [guid, peer] : peers_) {
+      if (peer.agent > 0 && !peer.gone) up.insert(peer.agent);
+    }
+    return up;
+  }
   // Forgets the participants (a new local participant authenticates afresh).
   void ResetPeers() {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -461,7 +479,22 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     bool gone = false;
     Clock::time_point discovered{};
     bool watched = false;  // its name and announced run are the watched ones (Watch)
+    AgentId agent = 0;     // agent-<id> of the watched run, else 0
   };
+  // The id of a participant named agent-<id> (0 for any other name).
+  static AgentId AgentIdOfName(const std::string& name) {
+    static const std::string prefix = "agent-";
+    if (name.size() <= prefix.size() || name.size() > prefix.size() + 6 ||
+        name.compare(0, prefix.size(), prefix) != 0) {
+      return 0;
+    }
+    AgentId id = 0;
+    for (std::size_t i = prefix.size(); i < name.size(); ++i) {
+      if (name[i] < '0' || name[i] > '9') return 0;
+      id = id * 10 + (name[i] - '0');
+    }
+    return id;
+  }
   std::string watched_name_, watched_run_;  // set before the participant exists
   std::atomic<int> watched_up_{0};
   mutable std::mutex mutex_;
@@ -707,6 +740,7 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
     throw std::runtime_error("cannot register the agent id content filter");
   }
   const bool ros2 = config.network.ros2_naming;
+  std::set<std::string> registered;  // the relay topics share one type
   for (Topic topic : kAllTopics) {
     fdds::TypeSupport support;
     switch (topic) {
@@ -714,10 +748,15 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
       case Topic::kRange: support.reset(new LockedKey<deif_msgs::RangePubSubType>()); break;
       case Topic::kContribution: support.reset(new LockedKey<deif_msgs::ContributionPubSubType>()); break;
       case Topic::kAgentState: support.reset(new LockedKey<deif_msgs::AgentStatePubSubType>()); break;
+      case Topic::kRelayUp:
+      case Topic::kRelayDown:
+        support.reset(new LockedKey<deif_msgs::ContributionBatchPubSubType>());
+        break;
     }
     const TopicNames names = NamesOf(topic);
     if (ros2) support->setName(names.ros2_type);
-    if (support.register_type(d.participant) != ReturnCode_t::RETCODE_OK) {
+    if (registered.insert(support.get_type_name()).second &&
+        support.register_type(d.participant) != ReturnCode_t::RETCODE_OK) {
       throw std::runtime_error(std::string("cannot register the type of ") + names.name);
     }
     fdds::Topic* t = d.participant->create_topic(ros2 ? names.ros2_name : names.name,
@@ -856,6 +895,32 @@ void Node::SetSubPartitions(Topic topic, const std::string& writer_suffix, const
   d.reader_sub_partitions[topic] = reader_suffix;
 }
 
+void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix) {
+  Impl& d = *impl_;
+  if (d.writer_sub_partitions.count(topic) == 0) {
+    throw std::logic_error(std::string("no sub-partitions to move on ") + NamesOf(topic).name);
+  }
+  d.writer_sub_partitions[topic] = writer_suffix;
+  d.reader_sub_partitions[topic] = reader_suffix;
+  const auto moved = [&d](const std::string& suffix, const auto& entity, const char* what) {
+    auto qos = entity->get_qos();
+    const std::string partition = "deif." + d.run_name + "." + suffix;
+    const auto names = qos.partition().getNames();
+    if (names.size() == 1 && names.front() == partition) return;
+    qos.partition().clear();
+    qos.partition().push_back(partition.c_str());
+    if (entity->set_qos(qos) != ReturnCode_t::RETCODE_OK) {
+      throw std::runtime_error(std::string("cannot move the ") + what + " to " + partition);
+    }
+  };
+  if (auto w = d.writers.find(topic); w != d.writers.end()) {
+    moved(writer_suffix, const_cast<fdds::Publisher*>(w->second->get_publisher()), "publisher");
+  }
+  if (auto r = d.readers.find(topic); r != d.readers.end()) {
+    moved(reader_suffix, const_cast<fdds::Subscriber*>(r->second->get_subscriber()), "subscriber");
+  }
+}
+
 void Node::MakePassive() {
   if (!impl_->writers.empty()) throw std::logic_error("a node with writers cannot become passive");
   impl_->passive = true;
@@ -982,8 +1047,8 @@ void WriteSample(Node::Impl& d, Topic topic, Idl sample, std::optional<AgentId> 
   d.last_write[writer] = Clock::now();
 }
 
-template <typename Idl, typename Msg>
-void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
+template <typename Idl, typename Msg, typename Convert>
+void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out, Convert convert) {
   auto it = d.readers.find(topic);
   if (it == d.readers.end()) return;
   Idl sample;
@@ -994,8 +1059,13 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
     if (d.own_writers.count(from) > 0) continue;  // our own samples
     const double written_unix_s = static_cast<double>(info.source_timestamp.seconds()) +
                                   1e-9 * static_cast<double>(info.source_timestamp.nanosec());
-    out.emplace_back(Received<Msg>{FromIdl(sample), from, written_unix_s});
+    out.emplace_back(Received<Msg>{convert(sample), from, written_unix_s});
   }
+}
+
+template <typename Idl, typename Msg>
+void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
+  TakeAll<Idl, Msg>(d, topic, out, [](const Idl& sample) { return FromIdl(sample); });
 }
 
 }  // namespace
@@ -1008,6 +1078,9 @@ void Node::Write(const protocol::ContributionMsg& msg) {
   WriteSample(*impl_, Topic::kContribution, ToIdl(msg));
 }
 void Node::Write(const protocol::StateMsg& msg) { WriteSample(*impl_, Topic::kAgentState, ToIdl(msg)); }
+void Node::Write(const protocol::BatchMsg& msg) {
+  WriteSample(*impl_, msg.down ? Topic::kRelayDown : Topic::kRelayUp, ToIdl(msg));
+}
 
 std::vector<Event> Node::Wait(Clock::time_point deadline) {
   Impl& d = *impl_;
@@ -1022,6 +1095,10 @@ std::vector<Event> Node::Wait(Clock::time_point deadline) {
   TakeAll<deif_msgs::Range, protocol::RangeMsg>(d, Topic::kRange, events);
   TakeAll<deif_msgs::Contribution, protocol::ContributionMsg>(d, Topic::kContribution, events);
   TakeAll<deif_msgs::AgentState, protocol::StateMsg>(d, Topic::kAgentState, events);
+  TakeAll<deif_msgs::ContributionBatch, protocol::BatchMsg>(
+      d, Topic::kRelayUp, events, [](const deif_msgs::ContributionBatch& b) { return FromIdl(b, false); });
+  TakeAll<deif_msgs::ContributionBatch, protocol::BatchMsg>(
+      d, Topic::kRelayDown, events, [](const deif_msgs::ContributionBatch& b) { return FromIdl(b, true); });
   std::vector<LivelinessChange> liveliness;
   {
     std::lock_guard<std::mutex> lock(d.events_mutex);
@@ -1065,6 +1142,8 @@ void Node::Abandon() {
 }
 
 bool Node::TargetUp() const { return impl_->participant_listener.WatchedUp(); }
+
+std::set<AgentId> Node::AgentsUp() const { return impl_->participant_listener.AgentsUp(); }
 
 bool Node::ReceiveStuck() { return g_receive_stuck.load(); }
 

@@ -39,7 +39,7 @@ struct LivelinessChange {
 };
 using Event = std::variant<Received<protocol::TruthMsg>, Received<protocol::RangeMsg>,
                            Received<protocol::ContributionMsg>, Received<protocol::StateMsg>,
-                           LivelinessChange>;
+                           Received<protocol::BatchMsg>, LivelinessChange>;
 
 // What a reader receives. only_id: only the samples keyed to one agent id; id_range: only
 // samples keyed to an id in [first, second], the others dropped as they arrive and counted
@@ -70,6 +70,10 @@ class Node {
   // The same, with the writer in deif.<run>.<writer_suffix> and the reader in
   // deif.<run>.<reader_suffix> (the tree exchange of bench/dds_alltoall.cpp).
   void SetSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
+  // Moves the writer and reader of `topic`, made after SetSubPartitions, to other
+  // sub-partitions (a relay of the tree exchange with a new parent): they unmatch the old
+  // peers and match the new ones, which get this writer's history (transient local).
+  void MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
   // Deletes this node's reader of `topic` (and its content filter), if it has one: the
   // peers' writers stop matching it. From the thread that calls Wait(), never during it.
   void RemoveReader(Topic topic);
@@ -86,6 +90,7 @@ class Node {
   void Write(const protocol::RangeMsg& msg);
   void Write(const protocol::ContributionMsg& msg);
   void Write(const protocol::StateMsg& msg);
+  void Write(const protocol::BatchMsg& msg);  // on deif/relay_down if msg.down, else relay_up
 
   // Waits until a sample or a liveliness change arrives, Wake() is called, or the
   // deadline; returns everything that arrived, in order per reader.
@@ -118,6 +123,9 @@ class Node {
   // is discovered and not gone, whether or not its endpoints exist yet (a target of a large
   // run takes seconds to make them). Not with ros2_naming (false).
   bool TargetUp() const;
+  // The agent ids of the participants named agent-<id> that announced this run and are up
+  // (discovered, not gone), whatever their endpoints. Empty with ros2_naming.
+  std::set<AgentId> AgentsUp() const;
   // True once a shared-memory receive thread of this process is stuck for good on a message
   // of a dead writer whose segment is gone (Fast DDS 2.9.1; docs/FASTDDS_NOTES.md, "A
   // receive loop stuck on a dead writer's segment"): the process hears nothing more on that

@@ -4,9 +4,9 @@
 
 namespace deif::dds {
 
-enum class Topic { kTruth, kRange, kContribution, kAgentState };
-inline constexpr Topic kAllTopics[] = {Topic::kTruth, Topic::kRange, Topic::kContribution,
-                                       Topic::kAgentState};
+enum class Topic { kTruth, kRange, kContribution, kAgentState, kRelayUp, kRelayDown };
+inline constexpr Topic kAllTopics[] = {Topic::kTruth,      Topic::kRange,   Topic::kContribution,
+                                       Topic::kAgentState, Topic::kRelayUp, Topic::kRelayDown};
 
 struct TopicNames {
   const char* name;       // "deif/range"
@@ -27,6 +27,12 @@ constexpr TopicNames NamesOf(Topic topic) {
     case Topic::kAgentState:
       return {"deif/agent_state", "rt/deif/agent_state", "deif_msgs::AgentState",
               "deif_msgs::msg::dds_::AgentState_"};
+    case Topic::kRelayUp:
+      return {"deif/relay_up", "rt/deif/relay_up", "deif_msgs::ContributionBatch",
+              "deif_msgs::msg::dds_::ContributionBatch_"};
+    case Topic::kRelayDown:
+      return {"deif/relay_down", "rt/deif/relay_down", "deif_msgs::ContributionBatch",
+              "deif_msgs::msg::dds_::ContributionBatch_"};
   }
   return {"", "", "", ""};
 }

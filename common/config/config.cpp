@@ -503,6 +503,17 @@ class Rules {
       Blame({"network.security.enabled", "network.ros2_naming"},
             "security.enabled needs ros2_naming: false");
     }
+    if (n.exchange == ExchangeKind::kTree && n.security.enabled) {
+      // DDS Security authenticates the relay, not the origin of what it forwards, and the
+      // permissions grant no relay partitions (docs/SCALING.md, "Trust").
+      Blame({"network.exchange", "network.security.enabled"},
+            "exchange: tree needs security.enabled: false (a relay's forwarded contributions "
+            "cannot be authenticated)");
+    }
+    if (n.exchange == ExchangeKind::kTree && n.ros2_naming) {
+      Blame({"network.exchange", "network.ros2_naming"},
+            "exchange: tree needs ros2_naming: false (its relays use partitions)");
+    }
     if (n.security.enabled && n.discovery == DiscoveryKind::kServer) {
       // Fast DDS 2.9.1 authenticates no participant through a Discovery Server (secure
       // Discovery Server came with Fast DDS 2.10): every secure process stalled at start,

@@ -74,6 +74,9 @@ struct AgentsConfig {
 enum class DiscoveryKind { kSimple, kServer };
 // Which Fast DDS transport carries the data (docs/ARCHITECTURE.md, transport).
 enum class TransportKind { kUdp, kShm };
+// How the contributions of a step reach every agent (docs/SCALING.md): each agent to every
+// other, or relayed as batches along a tree of the members.
+enum class ExchangeKind { kAllToAll, kTree };
 
 // DDS Security (docs/SECURITY.md): authentication, access control and encryption.
 struct SecurityConfig {
@@ -96,6 +99,9 @@ struct NetworkConfig {
   double nack_response_delay_s = 0.001;       // reliable writers [s]
   double heartbeat_response_delay_s = 0.001;  // reliable readers [s]
   double deadline_fraction = 0.8;    // real time: fuse by this fraction of the period
+  ExchangeKind exchange = ExchangeKind::kAllToAll;
+  int tree_fanout = 4;               // exchange: tree: children per relay
+  double relay_wait_s = 0.02;        // exchange: tree: a relay's longest wait for its children
   TransportKind transport = TransportKind::kShm;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
   std::string discovery_server = "127.0.0.1:11811";  // host:port, with discovery: server

@@ -76,6 +76,13 @@ const std::vector<EnumName<TransportKind>>& EnumTable<TransportKind>() {
   return table;
 }
 
+template <>
+const std::vector<EnumName<ExchangeKind>>& EnumTable<ExchangeKind>() {
+  static const std::vector<EnumName<ExchangeKind>> table = {{"all_to_all", ExchangeKind::kAllToAll},
+                                                            {"tree", ExchangeKind::kTree}};
+  return table;
+}
+
 const char* ToString(ControlLawKind law) { return NameOf(law); }
 const char* ToString(MotionModelKind kind) { return NameOf(kind); }
 const char* ToString(TrajectoryKind kind) { return NameOf(kind); }
@@ -83,5 +90,6 @@ const char* ToString(StepMode mode) { return NameOf(mode); }
 const char* ToString(FaultAction action) { return NameOf(action); }
 const char* ToString(DiscoveryKind kind) { return NameOf(kind); }
 const char* ToString(TransportKind kind) { return NameOf(kind); }
+const char* ToString(ExchangeKind kind) { return NameOf(kind); }
 
 }  // namespace deif

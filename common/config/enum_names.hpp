@@ -17,6 +17,7 @@ enum class StepMode;
 enum class FaultAction;
 enum class DiscoveryKind;
 enum class TransportKind;
+enum class ExchangeKind;
 
 template <typename Enum>
 struct EnumName {
@@ -41,6 +42,8 @@ template <>
 const std::vector<EnumName<DiscoveryKind>>& EnumTable<DiscoveryKind>();
 template <>
 const std::vector<EnumName<TransportKind>>& EnumTable<TransportKind>();
+template <>
+const std::vector<EnumName<ExchangeKind>>& EnumTable<ExchangeKind>();
 
 // The name of a value ("?" for a value outside the table).
 const char* ToString(ControlLawKind law);
@@ -50,6 +53,7 @@ const char* ToString(StepMode mode);
 const char* ToString(FaultAction action);
 const char* ToString(DiscoveryKind kind);
 const char* ToString(TransportKind kind);
+const char* ToString(ExchangeKind kind);
 
 // The value of a name; false (and *value unchanged) for a name outside the table.
 template <typename Enum>

@@ -576,6 +576,29 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .AtMost(1.0)
       .Doc("realtime mode: an agent fuses what arrived within this fraction of the period "
            "after its range; later contributions are fused late (history_steps).");
+  t.Add("exchange", [](Config& c) -> auto& { return c.network.exchange; })
+      .Default(ExchangeKind::kAllToAll)
+      .Note("tree needs security.enabled: false and ros2_naming: false")
+      .Doc("How a step's contributions reach every agent. all_to_all: each agent writes its "
+           "own to every other, N (N - 1) deliveries a step. tree: the members form a tree "
+           "of tree_fanout children per relay (by ascending id); each agent sends its "
+           "subtree's contributions up as one batch and the root's batch of all of them "
+           "comes back down, 2 (N - 1) deliveries a step, the same estimates bit for bit "
+           "(docs/SCALING.md). Relays are trusted to forward unchanged.");
+  t.Add("tree_fanout", [](Config& c) -> auto& { return c.network.tree_fanout; })
+      .Default(4)
+      .AtLeast(1)
+      .AtMost(64)
+      .Doc("exchange: tree: children per relay. Fewer: more hops in a row (about "
+           "2 log_fanout N); more: more deliveries wait on one relay.");
+  t.Add("relay_wait_s", [](Config& c) -> auto& { return c.network.relay_wait_s; })
+      .Default(0.02)
+      .AtLeast(0.0)
+      .AtMost(10.0)
+      .Unit("s")
+      .Doc("exchange: tree: how long a relay waits for its children's batches of a step "
+           "before it forwards what it holds; what comes later is forwarded as it arrives "
+           "and fused late. In realtime mode keep it well within the period.");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
       .Default(TransportKind::kShm)
       .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "

@@ -908,6 +908,19 @@ void AgentProtocol::OnUnknownIdsDropped(long total) {
   Reject("writers of ids outside 1.." + std::to_string(config_.agents.count), "unknown_agent_id", fresh);
 }
 
+void AgentProtocol::OnRelayRejected(const std::string& reason, std::int64_t count) {
+  if (finished_) return;
+  Reject("a relay of the tree exchange", reason, count);
+}
+
+std::set<AgentId> AgentProtocol::LostPeers() const {
+  std::set<AgentId> lost;
+  for (const auto& [id, peer] : peers_) {
+    if (peer.writer && !peer.alive) lost.insert(id);
+  }
+  return lost;
+}
+
 void AgentProtocol::Reject(const std::string& who, const std::string& reason, std::int64_t count) {
   counters_.rejected += count;
   counters_.by_reason["rejected: " + reason] += count;

@@ -126,6 +126,9 @@ class AgentProtocol {
   // 1..agents.count, before they reached this protocol (a content filter: garbage costs no
   // wake-up). Counted as rejected, reason unknown_agent_id, like those this protocol sees.
   void OnUnknownIdsDropped(long total);
+  // The tree exchange (common/protocol/tree_exchange.hpp) refused a batch or a relayed
+  // contribution: counted as rejected, with its reason.
+  void OnRelayRejected(const std::string& reason, std::int64_t count);
 
   // When OnTimer should next be called (nullopt: only events can move the protocol on).
   std::optional<double> NextDeadline() const;
@@ -143,6 +146,8 @@ class AgentProtocol {
   std::optional<InfoState> PosteriorOf(StepIndex k) const;
   // Members believed alive: this agent and every bound peer whose contribution writer lives.
   std::set<AgentId> Members() const;
+  // Peers whose bound contribution writer was seen lost and has not come back.
+  std::set<AgentId> LostPeers() const;
 
  private:
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -60,6 +61,28 @@ struct ContributionMsg {
   InfoState basis;               // the sender's y(k-1|k-1), Y(k-1|k-1)
   bool merge_request = false;    // the sender's history lost information (docs/PROTOCOL.md)
 };
+
+// A contribution as a relay of the tree exchange forwards it (docs/SCALING.md): unchanged,
+// with the key of the writer of deif/contribution of the agent that made it, so that the
+// receiver binds and tracks that agent exactly as when the contribution comes direct.
+struct RelayedContribution {
+  SenderKey origin{};
+  ContributionMsg msg;
+};
+
+// deif/relay_up (to the sender's parent) and deif/relay_down (to its children): a batch of
+// contributions of the tree exchange. `step` says that the sender's batches now hold every
+// contribution of step `step` the sender was waiting for (up: of its subtree; down: of
+// every member), 0 for a batch of late ones.
+struct BatchMsg {
+  RunToken run = 0;
+  AgentId sender_id = 0;
+  StepIndex step = 0;
+  bool down = false;  // the topic it travels on (not a field on the wire)
+  std::vector<RelayedContribution> items;
+};
+// Most contributions in one batch sample (the bound of idl/deif.idl); more go in several.
+inline constexpr std::size_t kMaxBatchItems = 256;
 
 // deif/agent_state: agent -> target (and observers), one per agent and step.
 struct StateMsg {

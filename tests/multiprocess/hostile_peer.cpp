@@ -131,6 +131,8 @@ int main(int argc, char** argv) {
       case Topic::kRange: return "deif/range";
       case Topic::kContribution: return "deif/contribution";
       case Topic::kAgentState: return "deif/agent_state";
+      case Topic::kRelayUp: return "deif/relay_up";
+      case Topic::kRelayDown: return "deif/relay_down";
     }
     return "?";
   };

@@ -1,0 +1,275 @@
+#include "common/protocol/tree_exchange.hpp"
+
+#include <algorithm>
+#include <utility>
+
+#include "common/protocol/validation.hpp"
+
+namespace deif::protocol {
+
+namespace {
+
+// The index of `id` in the sorted members, or -1.
+long IndexOf(const std::vector<AgentId>& members, AgentId id) {
+  const auto it = std::lower_bound(members.begin(), members.end(), id);
+  return it != members.end() && *it == id ? static_cast<long>(it - members.begin()) : -1;
+}
+
+}  // namespace
+
+TreePlace PlaceInTree(const std::vector<AgentId>& members, AgentId self, int fanout) {
+  TreePlace place;
+  const long m = IndexOf(members, self);
+  if (m < 0 || fanout < 1) return place;
+  if (m > 0) place.parent = members[static_cast<std::size_t>((m - 1) / fanout)];
+  const long n = static_cast<long>(members.size());
+  for (long c = m * fanout + 1; c <= m * fanout + fanout && c < n; ++c) {
+    place.children.push_back(members[static_cast<std::size_t>(c)]);
+  }
+  return place;
+}
+
+std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, int fanout) {
+  std::vector<AgentId> out;
+  const long root = IndexOf(members, id);
+  if (root < 0 || fanout < 1) return out;
+  const long n = static_cast<long>(members.size());
+  // Breadth first: the indices of each level form one contiguous run.
+  long first = root, last = root;
+  while (first < n) {
+    for (long i = first; i <= std::min(last, n - 1); ++i) out.push_back(members[static_cast<std::size_t>(i)]);
+    first = first * fanout + 1;
+    last = last * fanout + fanout;
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+TreeExchange::TreeExchange(const Config& config, Options options)
+    : config_(config),
+      options_(options),
+      fanout_(std::max(1, config.network.tree_fanout)),
+      wait_s_(config.network.relay_wait_s),
+      keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)) {
+  members_ = {options_.self};
+  sorted_ = {options_.self};
+}
+
+void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
+  members.insert(options_.self);
+  if (members == members_) return;
+  members_ = std::move(members);
+  sorted_.assign(members_.begin(), members_.end());
+  const std::optional<AgentId> old_parent = place_.parent;
+  place_ = PlaceInTree(sorted_, options_.self, fanout_);
+  if (place_.parent != old_parent) {
+    actions_.push_back(tree_action::Reparent{place_.parent});
+    // The new parent gets all this agent holds of the kept steps: the old one may have
+    // died with it. A new root sends down what it holds and had only sent up.
+    StepIndex report = 0;
+    for (auto& [step, s] : steps_) {
+      s.sent_up.clear();
+      if (s.flushed) report = step;
+    }
+    SendOutward(report);
+  }
+  // Children changed: steps waiting on a child that left may be ready now.
+  for (auto& [step, s] : steps_) {
+    if (!s.flushed) TryFlush(step, now_s);
+  }
+}
+
+TreeExchange::StepState* TreeExchange::StateOf(StepIndex step, double now_s) {
+  if (step < 1 || step < newest_ - keep_ || step > newest_ + keep_) return nullptr;
+  StepState& s = steps_[step];
+  if (s.first_s < 0.0) s.first_s = now_s;
+  return &s;
+}
+
+void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s) {
+  if (step < 1) return;
+  newest_ = std::max(newest_, step);
+  Trim();
+  StepState* s = StateOf(step, now_s);
+  if (s == nullptr) return;
+  if (!s->roll_call) s->roll_call.emplace(roll_call.begin(), roll_call.end());
+  TryFlush(step, now_s);
+}
+
+void TreeExchange::OnOwn(const ContributionMsg& msg, double now_s) {
+  newest_ = std::max(newest_, msg.step);
+  Trim();
+  StepState* s = StateOf(msg.step, now_s);
+  if (s == nullptr) return;
+  s->items.emplace(options_.self, RelayedContribution{options_.own_writer, msg});
+  s->reported.insert(options_.self);
+  TryFlush(msg.step, now_s);
+  OnTimer(now_s);
+}
+
+bool TreeExchange::Take(const RelayedContribution& item, double now_s) {
+  const ContributionMsg& msg = item.msg;
+  if (!ValidAgentId(msg.agent_id, config_)) {
+    actions_.push_back(tree_action::Reject{"unknown_agent_id"});
+    return false;
+  }
+  if (msg.run != options_.run) {
+    actions_.push_back(tree_action::Reject{"other_run"});
+    return false;
+  }
+  if (const char* reason = ValidateContributionMsg(msg, config_)) {
+    actions_.push_back(tree_action::Reject{reason});
+    return false;
+  }
+  const bool own = msg.agent_id == options_.self && item.origin == options_.own_writer;
+  StepState* s = StateOf(msg.step, now_s);
+  if (s == nullptr) {
+    // Outside the steps relayed: the step protocol decides (it holds a joiner's first steps
+    // and drops what is too old or too far ahead).
+    if (!own) actions_.push_back(tree_action::Deliver{item});
+    return false;
+  }
+  if (s->delivered.count(msg.agent_id) > 0 || s->items.count(msg.agent_id) > 0) {
+    return false;  // a second copy (another path, the DDS history of a new parent)
+  }
+  s->items.emplace(msg.agent_id, item);
+  if (!own) {
+    s->delivered.insert(msg.agent_id);
+    actions_.push_back(tree_action::Deliver{item});
+  }
+  return true;
+}
+
+void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
+  if (batch.run != options_.run) {
+    actions_.push_back(tree_action::Reject{"other_run"});
+    return;
+  }
+  if (!ValidAgentId(batch.sender_id, config_) || batch.sender_id == options_.self) {
+    actions_.push_back(tree_action::Reject{"unknown_relay"});
+    return;
+  }
+  if (batch.items.size() > kMaxBatchItems) {
+    actions_.push_back(tree_action::Reject{"oversized_batch"});
+    return;
+  }
+  for (const RelayedContribution& item : batch.items) Take(item, now_s);
+  if (batch.down) {
+    // From the parent: passed on at once to the children, with what this agent holds.
+    SendDown(batch.step);
+  } else if (batch.step > 0) {
+    if (StepState* s = StateOf(batch.step, now_s)) {
+      s->reported.insert(batch.sender_id);
+      TryFlush(batch.step, now_s);
+    }
+  }
+  OnTimer(now_s);
+}
+
+std::set<AgentId> TreeExchange::Expected(const StepState& s) const {
+  std::set<AgentId> expected;
+  if (!s.roll_call || s.roll_call->count(options_.self) > 0) expected.insert(options_.self);
+  for (AgentId child : place_.children) {
+    if (!s.roll_call) {
+      expected.insert(child);
+      continue;
+    }
+    for (AgentId id : SubtreeOf(sorted_, child, fanout_)) {
+      if (s.roll_call->count(id) > 0) {
+        expected.insert(child);
+        break;
+      }
+    }
+  }
+  return expected;
+}
+
+void TreeExchange::TryFlush(StepIndex step, double now_s) {
+  auto it = steps_.find(step);
+  if (it == steps_.end() || it->second.flushed) return;
+  StepState& s = it->second;
+  const std::set<AgentId> expected = Expected(s);
+  const bool all = std::includes(s.reported.begin(), s.reported.end(), expected.begin(), expected.end());
+  if (!all && now_s < s.first_s + wait_s_) return;
+  s.flushed = true;
+  if (!Root() && s.items.empty() && expected.empty()) return;  // nothing the parent waits for
+  SendOutward(step);
+}
+
+void TreeExchange::SendOutward(StepIndex step) {
+  if (Root()) {
+    SendDown(step);
+    return;
+  }
+  std::vector<RelayedContribution> items;
+  for (auto& [k, s] : steps_) {
+    for (auto& [id, item] : s.items) {
+      if (s.sent_up.insert(id).second) items.push_back(item);
+    }
+  }
+  Send(/*down=*/false, step, std::move(items));
+}
+
+void TreeExchange::SendDown(StepIndex step) {
+  std::vector<RelayedContribution> items;
+  for (auto& [k, s] : steps_) {
+    for (auto& [id, item] : s.items) {
+      if (s.sent_down.insert(id).second) items.push_back(item);
+    }
+  }
+  if (items.empty()) return;
+  Send(/*down=*/true, step, std::move(items));
+}
+
+void TreeExchange::Send(bool down, StepIndex step, std::vector<RelayedContribution> items) {
+  // In samples of at most kMaxBatchItems; the step is reported with the last.
+  std::size_t begin = 0;
+  do {
+    const std::size_t end = std::min(items.size(), begin + kMaxBatchItems);
+    BatchMsg batch;
+    batch.run = options_.run;
+    batch.sender_id = options_.self;
+    batch.down = down;
+    batch.step = end == items.size() ? step : 0;
+    batch.items.assign(items.begin() + static_cast<long>(begin), items.begin() + static_cast<long>(end));
+    actions_.push_back(tree_action::Send{std::move(batch)});
+    begin = end;
+  } while (begin < items.size());
+}
+
+void TreeExchange::OnTimer(double now_s) {
+  for (auto& [step, s] : steps_) {
+    if (!s.flushed) TryFlush(step, now_s);
+  }
+  // What arrived for steps whose batch is gone goes on at once.
+  bool late = false;
+  for (const auto& [step, s] : steps_) {
+    if (!s.flushed) continue;
+    for (const auto& [id, item] : s.items) {
+      if ((Root() ? s.sent_down : s.sent_up).count(id) == 0) late = true;
+    }
+  }
+  if (late) SendOutward(0);
+}
+
+std::optional<double> TreeExchange::NextDeadline() const {
+  std::optional<double> next;
+  for (const auto& [step, s] : steps_) {
+    if (s.flushed || s.first_s < 0.0) continue;
+    const double due = s.first_s + wait_s_;
+    if (!next || due < *next) next = due;
+  }
+  return next;
+}
+
+std::vector<TreeAction> TreeExchange::TakeActions() {
+  std::vector<TreeAction> out;
+  out.swap(actions_);
+  return out;
+}
+
+void TreeExchange::Trim() {
+  while (!steps_.empty() && steps_.begin()->first < newest_ - keep_) steps_.erase(steps_.begin());
+}
+
+}  // namespace deif::protocol

@@ -1,0 +1,132 @@
+// The tree exchange of contributions (docs/SCALING.md, network.exchange: tree) as a pure
+// state machine, like AgentProtocol: events in (this agent's own contribution, a batch from
+// a child or from the parent, a roll call, the members, the clock), actions out (send a
+// batch up or down, hand a contribution to the step protocol, move to another parent).
+//
+// The members, sorted by id, form a tree: member number m (from 0) has parent number
+// (m - 1) / F and children m F + 1 .. m F + F. Every agent computes it from the same
+// membership, so no election is needed. A step's contributions go up, each relay sending
+// its subtree's as one batch once it holds its own and one batch of the step from each
+// child that has a measured agent below it (or after network.relay_wait_s, whichever comes
+// first); the root sends all of them down as one batch, which every relay passes on to its
+// children. So a step costs 2 (N - 1) deliveries instead of N (N - 1).
+//
+// Contributions are forwarded unchanged, never summed: each reaches every agent's step
+// protocol (AgentProtocol::OnContribution), which validates it and fuses it in ascending id
+// exactly as when it comes direct, so the estimates are those of the all-to-all exchange,
+// bit for bit. What comes after a relay's batch of its step is forwarded as it arrives.
+// When the tree changes (a member lost or back), a relay with a new parent sends it what it
+// holds of the steps it keeps; the DDS history of the relay topics (transient local) gives a
+// new child what its new parent sent before.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "common/config/config.hpp"
+#include "common/protocol/messages.hpp"
+
+namespace deif::protocol {
+
+// An agent's place in the tree of `members` (ascending ids; `self` among them).
+struct TreePlace {
+  std::optional<AgentId> parent;  // nullopt: the root
+  std::vector<AgentId> children;
+};
+TreePlace PlaceInTree(const std::vector<AgentId>& members, AgentId self, int fanout);
+// The ids of the subtree under `id` (itself included); empty if `id` is not a member.
+std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, int fanout);
+
+namespace tree_action {
+struct Send {  // batch.down: to the children (deif/relay_down), else to the parent
+  BatchMsg batch;
+};
+struct Deliver {  // a peer's contribution for the step protocol
+  RelayedContribution item;
+};
+struct Reparent {  // this agent's parent is now `parent` (nullopt: it is the root)
+  std::optional<AgentId> parent;
+};
+struct Reject {  // an invalid batch or item, counted like any rejected message
+  std::string reason;
+  std::int64_t count = 1;
+};
+}  // namespace tree_action
+
+using TreeAction = std::variant<tree_action::Send, tree_action::Deliver, tree_action::Reparent,
+                                tree_action::Reject>;
+
+class TreeExchange {
+ public:
+  struct Options {
+    AgentId self = 1;
+    RunToken run = 1;
+    SenderKey own_writer{};  // this agent's writer of deif/contribution
+  };
+  // The config must outlive the exchange (network.tree_fanout, relay_wait_s, history_steps,
+  // fusion_window_steps, agents.count). Starts as the root of a tree of itself alone.
+  TreeExchange(const Config& config, Options options);
+
+  // The members the tree is made of (this agent is added); a change may move this agent to
+  // another parent (a Reparent action, then what it holds is sent to the new one).
+  void SetMembers(std::set<AgentId> members, double now_s);
+  // The target's roll call of `step`: which subtrees have a contribution to wait for.
+  void OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s);
+  // This agent's own contribution.
+  void OnOwn(const ContributionMsg& msg, double now_s);
+  // A batch from a child (up) or from the parent (down).
+  void OnBatch(const BatchMsg& batch, double now_s);
+  void OnTimer(double now_s);
+
+  // When OnTimer should next be called (nullopt: only events move it on).
+  std::optional<double> NextDeadline() const;
+  std::vector<TreeAction> TakeActions();
+
+  const TreePlace& place() const { return place_; }
+  const std::set<AgentId>& members() const { return members_; }
+
+ private:
+  struct StepState {
+    std::optional<std::set<AgentId>> roll_call;
+    std::set<AgentId> reported;  // itself (own contribution) and children that sent step k
+    std::map<AgentId, RelayedContribution> items;  // by origin id: the first valid one
+    std::set<AgentId> delivered, sent_up, sent_down;
+    double first_s = -1.0;  // when this agent first heard of the step
+    bool flushed = false;   // its batch of the step is sent (up, or down from the root)
+  };
+
+  bool Root() const { return !place_.parent.has_value(); }
+  // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
+  StepState* StateOf(StepIndex step, double now_s);
+  // Stores a new item (false: a duplicate, or not storable); delivers it unless it is this
+  // agent's own.
+  bool Take(const RelayedContribution& item, double now_s);
+  std::set<AgentId> Expected(const StepState& s) const;
+  void TryFlush(StepIndex step, double now_s);
+  // Sends what is waiting to go outward (up, or down from the root) with `step`.
+  void SendOutward(StepIndex step);
+  // Sends down the items of every kept step not yet sent down, with `step`.
+  void SendDown(StepIndex step);
+  void Send(bool down, StepIndex step, std::vector<RelayedContribution> items);
+  void Trim();
+
+  const Config& config_;
+  const Options options_;
+  const int fanout_;
+  const double wait_s_;
+  const StepIndex keep_;  // steps kept behind (and ahead of) the newest roll call
+
+  std::set<AgentId> members_;
+  std::vector<AgentId> sorted_;
+  TreePlace place_;
+  std::map<StepIndex, StepState> steps_;
+  StepIndex newest_ = 0;  // the newest step of a roll call or of this agent's own
+  std::vector<TreeAction> actions_;
+};
+
+}  // namespace deif::protocol
