@@ -60,18 +60,38 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
   if (members == members_) return;
   members_ = std::move(members);
   sorted_.assign(members_.begin(), members_.end());
+  const TreePlace old = place_;
   const std::optional<AgentId> old_parent = place_.parent;
   place_ = PlaceInTree(sorted_, options_.self, fanout_);
+  const bool new_child = std::any_of(place_.children.begin(), place_.children.end(), [&old](AgentId c) {
+    return std::find(old.children.begin(), old.children.end(), c) == old.children.end();
+  });
   if (place_.parent != old_parent) {
     actions_.push_back(tree_action::Reparent{place_.parent});
     // The new parent gets all this agent holds of the kept steps: the old one may have
     // died with it. A new root sends down what it holds and had only sent up.
     StepIndex report = 0;
+    unsent_up_.clear();
     for (auto& [step, s] : steps_) {
       s.sent_up.clear();
+      for (const auto& entry : s.items) {
+        if (s.from_above.count(entry.first) == 0) unsent_up_.emplace_back(step, entry.first);
+      }
       if (s.flushed) report = step;
     }
     SendOutward(report);
+  }
+  if (new_child) {
+    // A new child has none of what this agent sent down before (the DDS history of the
+    // relay topic gives it as much again; copies are dropped).
+    unsent_down_.clear();
+    StepIndex report = 0;
+    for (auto& [step, s] : steps_) {
+      s.sent_down.clear();
+      for (const auto& entry : s.items) unsent_down_.emplace_back(step, entry.first);
+      if (s.flushed) report = step;
+    }
+    SendDown(report);
   }
   // Children changed: steps waiting on a child that left may be ready now.
   for (auto& [step, s] : steps_) {
@@ -101,13 +121,16 @@ void TreeExchange::OnOwn(const ContributionMsg& msg, double now_s) {
   Trim();
   StepState* s = StateOf(msg.step, now_s);
   if (s == nullptr) return;
-  s->items.emplace(options_.self, RelayedContribution{options_.own_writer, msg});
+  if (s->items.emplace(options_.self, RelayedContribution{options_.own_writer, msg}).second) {
+    unsent_up_.emplace_back(msg.step, options_.self);
+    unsent_down_.emplace_back(msg.step, options_.self);
+  }
   s->reported.insert(options_.self);
   TryFlush(msg.step, now_s);
   OnTimer(now_s);
 }
 
-bool TreeExchange::Take(const RelayedContribution& item, double now_s) {
+bool TreeExchange::Take(const RelayedContribution& item, bool from_above, double now_s) {
   const ContributionMsg& msg = item.msg;
   if (!ValidAgentId(msg.agent_id, config_)) {
     actions_.push_back(tree_action::Reject{"unknown_agent_id"});
@@ -133,6 +156,12 @@ bool TreeExchange::Take(const RelayedContribution& item, double now_s) {
     return false;  // a second copy (another path, the DDS history of a new parent)
   }
   s->items.emplace(msg.agent_id, item);
+  if (from_above) {
+    s->from_above.insert(msg.agent_id);  // the parent has it: never sent back up
+  } else {
+    unsent_up_.emplace_back(msg.step, msg.agent_id);
+  }
+  unsent_down_.emplace_back(msg.step, msg.agent_id);
   if (!own) {
     s->delivered.insert(msg.agent_id);
     actions_.push_back(tree_action::Deliver{item});
@@ -153,7 +182,7 @@ void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
     actions_.push_back(tree_action::Reject{"oversized_batch"});
     return;
   }
-  for (const RelayedContribution& item : batch.items) Take(item, now_s);
+  for (const RelayedContribution& item : batch.items) Take(item, batch.down, now_s);
   if (batch.down) {
     // From the parent: passed on at once to the children, with what this agent holds.
     SendDown(batch.step);
@@ -201,24 +230,26 @@ void TreeExchange::SendOutward(StepIndex step) {
     SendDown(step);
     return;
   }
-  std::vector<RelayedContribution> items;
-  for (auto& [k, s] : steps_) {
-    for (auto& [id, item] : s.items) {
-      if (s.sent_up.insert(id).second) items.push_back(item);
-    }
-  }
-  Send(/*down=*/false, step, std::move(items));
+  Send(/*down=*/false, step, Drain(unsent_up_, &StepState::sent_up));
 }
 
 void TreeExchange::SendDown(StepIndex step) {
-  std::vector<RelayedContribution> items;
-  for (auto& [k, s] : steps_) {
-    for (auto& [id, item] : s.items) {
-      if (s.sent_down.insert(id).second) items.push_back(item);
-    }
-  }
+  std::vector<RelayedContribution> items = Drain(unsent_down_, &StepState::sent_down);
   if (items.empty()) return;
   Send(/*down=*/true, step, std::move(items));
+}
+
+std::vector<RelayedContribution> TreeExchange::Drain(std::vector<std::pair<StepIndex, AgentId>>& queue,
+                                                     std::set<AgentId> StepState::*sent) {
+  std::vector<RelayedContribution> items;
+  for (const auto& [step, id] : queue) {
+    auto s = steps_.find(step);
+    if (s == steps_.end()) continue;  // trimmed meanwhile
+    auto item = s->second.items.find(id);
+    if (item != s->second.items.end() && (s->second.*sent).insert(id).second) items.push_back(item->second);
+  }
+  queue.clear();
+  return items;
 }
 
 void TreeExchange::Send(bool down, StepIndex step, std::vector<RelayedContribution> items) {
@@ -242,14 +273,13 @@ void TreeExchange::OnTimer(double now_s) {
     if (!s.flushed) TryFlush(step, now_s);
   }
   // What arrived for steps whose batch is gone goes on at once.
-  bool late = false;
-  for (const auto& [step, s] : steps_) {
-    if (!s.flushed) continue;
-    for (const auto& [id, item] : s.items) {
-      if ((Root() ? s.sent_down : s.sent_up).count(id) == 0) late = true;
+  for (const auto& entry : Root() ? unsent_down_ : unsent_up_) {
+    auto s = steps_.find(entry.first);
+    if (s != steps_.end() && s->second.flushed) {
+      SendOutward(0);
+      return;
     }
   }
-  if (late) SendOutward(0);
 }
 
 std::optional<double> TreeExchange::NextDeadline() const {

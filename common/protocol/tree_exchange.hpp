@@ -25,6 +25,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <utility>
 #include <variant>
 #include <vector>
 
@@ -96,6 +97,7 @@ class TreeExchange {
     std::set<AgentId> reported;  // itself (own contribution) and children that sent step k
     std::map<AgentId, RelayedContribution> items;  // by origin id: the first valid one
     std::set<AgentId> delivered, sent_up, sent_down;
+    std::set<AgentId> from_above;  // came down from the parent
     double first_s = -1.0;  // when this agent first heard of the step
     bool flushed = false;   // its batch of the step is sent (up, or down from the root)
   };
@@ -103,9 +105,9 @@ class TreeExchange {
   bool Root() const { return !place_.parent.has_value(); }
   // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
   StepState* StateOf(StepIndex step, double now_s);
-  // Stores a new item (false: a duplicate, or not storable); delivers it unless it is this
-  // agent's own.
-  bool Take(const RelayedContribution& item, double now_s);
+  // Stores a new item (false: a duplicate, or not storable) and queues it to be sent down,
+  // and up unless it came from above; delivers it unless it is this agent's own.
+  bool Take(const RelayedContribution& item, bool from_above, double now_s);
   std::set<AgentId> Expected(const StepState& s) const;
   void TryFlush(StepIndex step, double now_s);
   // Sends what is waiting to go outward (up, or down from the root) with `step`.
@@ -113,6 +115,9 @@ class TreeExchange {
   // Sends down the items of every kept step not yet sent down, with `step`.
   void SendDown(StepIndex step);
   void Send(bool down, StepIndex step, std::vector<RelayedContribution> items);
+  // The queued items not yet sent that way, marked sent; the queue emptied.
+  std::vector<RelayedContribution> Drain(std::vector<std::pair<StepIndex, AgentId>>& queue,
+                                         std::set<AgentId> StepState::*sent);
   void Trim();
 
   const Config& config_;
@@ -126,6 +131,8 @@ class TreeExchange {
   TreePlace place_;
   std::map<StepIndex, StepState> steps_;
   StepIndex newest_ = 0;  // the newest step of a roll call or of this agent's own
+  // Items (step, origin id) stored and not yet sent up / down, in arrival order.
+  std::vector<std::pair<StepIndex, AgentId>> unsent_up_, unsent_down_;
   std::vector<TreeAction> actions_;
 };
 
