@@ -148,7 +148,13 @@ int AgentNode::Run() {
     }
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    if (tree_) tree_->SetMembers(TreeMembers(), now_s);
+    if (tree_) {
+      const auto version = std::make_pair(node_.ParticipantsVersion(), protocol_.membership_version());
+      if (version != tree_version_) {  // only then: building the members costs
+        tree_version_ = version;
+        tree_->SetMembers(TreeMembers(), now_s);
+      }
+    }
     for (const dds::Event& event : events) Dispatch(event, now_s);
     ReportMatches(now_s);
     protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
@@ -275,12 +281,12 @@ void AgentNode::Execute(std::vector<protocol::AgentAction> actions) {
 
 void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
   namespace act = protocol::tree_action;
-  std::vector<protocol::RelayedContribution> deliveries;
+  std::vector<std::pair<protocol::ContributionMsg, protocol::SenderKey>> deliveries;
   for (protocol::TreeAction& action : actions) {
     if (auto* send = std::get_if<act::Send>(&action)) {
       node_.Write(send->batch);
     } else if (auto* deliver = std::get_if<act::Deliver>(&action)) {
-      deliveries.push_back(std::move(deliver->item));  // after the sends: relaying first
+      deliveries.emplace_back(std::move(deliver->item.msg), deliver->item.origin);  // after the sends
     } else if (const auto* reparent = std::get_if<act::Reparent>(&action)) {
       const std::string parent = reparent->parent ? std::to_string(*reparent->parent) : "none";
       const std::string self = std::to_string(id_);
@@ -293,10 +299,7 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
       protocol_.OnRelayRejected(reject->reason, reject->count);
     }
   }
-  const double now_s = dds::ToSeconds(dds::Clock::now());
-  for (const protocol::RelayedContribution& item : deliveries) {
-    protocol_.OnContribution(item.msg, item.origin, now_s);
-  }
+  if (!deliveries.empty()) protocol_.OnContributions(deliveries, dds::ToSeconds(dds::Clock::now()));
 }
 
 void AgentNode::Pump() {

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <optional>
 #include <set>
+#include <utility>
 #include <vector>
 
 #include "common/artefacts/artefacts.hpp"
@@ -58,6 +59,8 @@ class AgentNode : public dds::Application {
   dds::Node node_;
   protocol::AgentProtocol protocol_;
   std::optional<protocol::TreeExchange> tree_;  // network.exchange: tree
+  // The participants' and the protocol's membership versions the tree was last made from.
+  std::pair<std::uint64_t, std::uint64_t> tree_version_{~0ull, ~0ull};
   std::optional<AgentCsv> csv_;
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;

@@ -408,6 +408,7 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     int up = 0;
     for (const auto& [guid, peer] : peers_) up += peer.watched && !peer.gone ? 1 : 0;
     watched_up_.store(up);
+    version_.fetch_add(1);
   }
 
   void onParticipantAuthentication(fdds::DomainParticipant*,
@@ -451,6 +452,8 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     watched_run_ = run;
   }
   bool WatchedUp() const { return watched_up_.load() > 0; }
+  // Changes with every participant discovered or gone (without a lock).
+  std::uint64_t Version() const { return version_.load(); }
   // The ids of the participants named agent-<id> that announced the watched run and are up.
   std::set<AgentId> AgentsUp() const {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -497,6 +500,7 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
   }
   std::string watched_name_, watched_run_;  // set before the participant exists
   std::atomic<int> watched_up_{0};
+  std::atomic<std::uint64_t> version_{0};
   mutable std::mutex mutex_;
   std::map<protocol::SenderKey, Binding> bindings_;
   std::map<Guid, Peer> peers_;
@@ -1051,7 +1055,8 @@ template <typename Idl, typename Msg, typename Convert>
 void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out, Convert convert) {
   auto it = d.readers.find(topic);
   if (it == d.readers.end()) return;
-  Idl sample;
+  // Kept from call to call: a batch's sequence keeps its storage (docs/BENCHMARKS.md).
+  thread_local Idl sample;
   fdds::SampleInfo info;
   while (it->second->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK) {
     if (!info.valid_data) continue;
@@ -1144,6 +1149,8 @@ void Node::Abandon() {
 bool Node::TargetUp() const { return impl_->participant_listener.WatchedUp(); }
 
 std::set<AgentId> Node::AgentsUp() const { return impl_->participant_listener.AgentsUp(); }
+
+std::uint64_t Node::ParticipantsVersion() const { return impl_->participant_listener.Version(); }
 
 bool Node::ReceiveStuck() { return g_receive_stuck.load(); }
 

@@ -126,6 +126,8 @@ class Node {
   // The agent ids of the participants named agent-<id> that announced this run and are up
   // (discovered, not gone), whatever their endpoints. Empty with ros2_naming.
   std::set<AgentId> AgentsUp() const;
+  // Changes whenever a participant is discovered or gone (AgentsUp may have changed).
+  std::uint64_t ParticipantsVersion() const;
   // True once a shared-memory receive thread of this process is stuck for good on a message
   // of a dead writer whose segment is gone (Fast DDS 2.9.1; docs/FASTDDS_NOTES.md, "A
   // receive loop stuck on a dead writer's segment"): the process hears nothing more on that

@@ -153,6 +153,7 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
   Peer& peer = peers_[msg.agent_id];
   if (!peer.alive) {
     peer.alive = true;  // a sample from its writer: it lives
+    ++membership_version_;
     Log(LogLevel::kInfo, who + " is a member; members now " + std::to_string(Members().size()));
   }
   if (!peer.last_position || peer.last_position->first < msg.step - 1) {
@@ -180,7 +181,7 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
       return;
     }
     Hold(record->second, std::move(held), /*count_late=*/true);
-    Advance(now_s);
+    if (!deferring_) Advance(now_s);
     return;
   }
   if ((!records_.empty() && msg.step < records_.begin()->first) || msg.step <= written_) {
@@ -214,6 +215,17 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
   // newest step the target announces).
   const std::size_t keep = static_cast<std::size_t>(config_.network.fusion_window_steps) + 2;
   while (!ever_opened_ && early_.size() > keep) early_.erase(early_.begin());
+  if (!deferring_) Advance(now_s);
+}
+
+void AgentProtocol::OnContributions(const std::vector<std::pair<ContributionMsg, SenderKey>>& batch,
+                                    double now_s) {
+  // The same as one OnContribution after another, with one recomputation of the steps they
+  // touch instead of one per contribution (a batch of the tree exchange holds N of them).
+  deferring_ = true;
+  for (const auto& [msg, from] : batch) OnContribution(msg, from, now_s);
+  deferring_ = false;
+  if (finished_ || !started_) return;
   Advance(now_s);
 }
 
@@ -246,6 +258,7 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
   Peer& peer = peers_[bound->second];
   if (!peer.writer || *peer.writer != writer || peer.alive == alive) return;
   peer.alive = alive;
+  ++membership_version_;
   if (!alive) peer.lost_at_s = now_s;
   const std::string members = std::to_string(Members().size());
   if (alive) {
@@ -388,6 +401,11 @@ std::set<AgentId> AgentProtocol::Members() const {
 // Steps
 
 void AgentProtocol::Advance(double now_s) {
+  if (dirty_from_) {  // contributions held by OnContributions, not yet summed
+    const StepIndex from = *dirty_from_;
+    dirty_from_.reset();
+    Recompute(from);
+  }
   while (!finished_) {
     if (open_) {
       if (!CanFinish(records_.rbegin()->second, now_s)) break;
@@ -771,6 +789,10 @@ void AgentProtocol::Hold(Record& r, Held held, bool count_late) {
   if (r.written && count_late) ++counters_.late;
   if (r.awaiting_basis) {
     TryAdopt(r);
+    return;
+  }
+  if (deferring_) {  // OnContributions: once for the whole batch (Advance, or at its end)
+    dirty_from_ = std::min(dirty_from_.value_or(r.step), r.step);
     return;
   }
   Recompute(r.step);

@@ -104,6 +104,9 @@ class AgentProtocol {
   void Start(double now_s);
   void OnRange(const RangeMsg& msg, const SenderKey& from, double now_s);
   void OnContribution(const ContributionMsg& msg, const SenderKey& from, double now_s);
+  // Several contributions at once (a batch of the tree exchange): the same outcome as
+  // OnContribution for each in order, with the estimates recomputed once.
+  void OnContributions(const std::vector<std::pair<ContributionMsg, SenderKey>>& batch, double now_s);
   // A remote writer's liveliness changed: a peer's contribution writer, or the target's
   // range writer.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
@@ -148,6 +151,8 @@ class AgentProtocol {
   std::set<AgentId> Members() const;
   // Peers whose bound contribution writer was seen lost and has not come back.
   std::set<AgentId> LostPeers() const;
+  // Changes whenever a peer is seen alive or lost (LostPeers and Members may have changed).
+  std::uint64_t membership_version() const { return membership_version_; }
 
  private:
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
@@ -233,6 +238,9 @@ class AgentProtocol {
 
   bool started_ = false;
   bool finished_ = false;
+  std::uint64_t membership_version_ = 0;
+  bool deferring_ = false;                // within OnContributions
+  std::optional<StepIndex> dirty_from_;   // held while deferring, not yet recomputed
   std::vector<AgentAction> actions_;
   AgentCounters counters_;
   std::set<std::string> logged_once_;
