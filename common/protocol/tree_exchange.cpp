@@ -234,6 +234,10 @@ void TreeExchange::SendOutward(StepIndex step) {
 }
 
 void TreeExchange::SendDown(StepIndex step) {
+  if (place_.children.empty()) {  // a leaf: nobody to send to (a new child gets it all then)
+    unsent_down_.clear();
+    return;
+  }
   std::vector<RelayedContribution> items = Drain(unsent_down_, &StepState::sent_down);
   if (items.empty()) return;
   Send(/*down=*/true, step, std::move(items));
