@@ -65,7 +65,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   // (docs/BENCHMARKS.md, "Readers that want nothing"). Once running, another process that
   // speaks for this id shows in its contributions (agent_id_clash).
   node_.AddReader({dds::Topic::kAgentState, id_});
-  if (config_.network.exchange == ExchangeKind::kTree) {
+  if (EffectiveExchange(config_) == ExchangeKind::kTree) {
     // Relay partitions (docs/SCALING.md): up.<id> holds the batches of this agent's
     // children, down.<id> its own batches to them; the writer up and the reader down move
     // to the parent's as the tree changes. It starts as the root of a tree of itself.

@@ -888,6 +888,13 @@ Config LoadConfig(const std::string& path, const std::vector<std::string>& overr
   return ParseConfig(text, path, overrides);
 }
 
+ExchangeKind EffectiveExchange(const Config& config) {
+  const NetworkConfig& n = config.network;
+  if (n.exchange != ExchangeKind::kAuto) return n.exchange;
+  const bool plain = !n.security.enabled && !n.ros2_naming && n.discovery == DiscoveryKind::kSimple;
+  return plain && config.agents.count >= kTreeFromAgents ? ExchangeKind::kTree : ExchangeKind::kAllToAll;
+}
+
 std::string ToYaml(const Config& config) {
   YAML::Emitter out;
   out << YAML::BeginMap;

@@ -76,7 +76,8 @@ enum class DiscoveryKind { kSimple, kServer };
 enum class TransportKind { kUdp, kShm };
 // How the contributions of a step reach every agent (docs/SCALING.md): each agent to every
 // other, or relayed as batches along a tree of the members.
-enum class ExchangeKind { kAllToAll, kTree };
+// auto: the tree from kTreeFromAgents agents on in plain runs (docs/SCALING.md).
+enum class ExchangeKind { kAuto, kAllToAll, kTree };
 
 // DDS Security (docs/SECURITY.md): authentication, access control and encryption.
 struct SecurityConfig {
@@ -99,7 +100,7 @@ struct NetworkConfig {
   double nack_response_delay_s = 0.001;       // reliable writers [s]
   double heartbeat_response_delay_s = 0.001;  // reliable readers [s]
   double deadline_fraction = 0.8;    // real time: fuse by this fraction of the period
-  ExchangeKind exchange = ExchangeKind::kAllToAll;
+  ExchangeKind exchange = ExchangeKind::kAuto;
   int tree_fanout = 4;               // exchange: tree: children per relay
   double relay_wait_s = 0.02;        // exchange: tree: a relay's longest wait for its children
   TransportKind transport = TransportKind::kShm;
@@ -148,6 +149,16 @@ struct Config {
   NetworkSimConfig network_sim;
   std::vector<FaultConfig> faults;
 };
+
+// network.exchange: auto picks the tree from this many agents on (docs/SCALING.md): below,
+// all to all keeps deif/contribution carrying every contribution, as other DDS tools
+// expect (docs/ARCHITECTURE.md); from here on a step of all to all costs the host more than
+// real time at 10 Hz affords.
+inline constexpr int kTreeFromAgents = 17;
+// The exchange a run uses: network.exchange, with auto resolved. auto is all to all with
+// security, ros2_naming or a Discovery Server, below kTreeFromAgents agents, and the tree
+// otherwise.
+ExchangeKind EffectiveExchange(const Config& config);
 
 // The struct defaults above equal the schema's (a unit test checks it); ParseConfig starts
 // from the schema's.

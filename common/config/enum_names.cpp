@@ -78,7 +78,8 @@ const std::vector<EnumName<TransportKind>>& EnumTable<TransportKind>() {
 
 template <>
 const std::vector<EnumName<ExchangeKind>>& EnumTable<ExchangeKind>() {
-  static const std::vector<EnumName<ExchangeKind>> table = {{"all_to_all", ExchangeKind::kAllToAll},
+  static const std::vector<EnumName<ExchangeKind>> table = {{"auto", ExchangeKind::kAuto},
+                                                            {"all_to_all", ExchangeKind::kAllToAll},
                                                             {"tree", ExchangeKind::kTree}};
   return table;
 }

@@ -577,14 +577,16 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Doc("realtime mode: an agent fuses what arrived within this fraction of the period "
            "after its range; later contributions are fused late (history_steps).");
   t.Add("exchange", [](Config& c) -> auto& { return c.network.exchange; })
-      .Default(ExchangeKind::kAllToAll)
+      .Default(ExchangeKind::kAuto)
       .Note("tree needs security.enabled: false and ros2_naming: false")
       .Doc("How a step's contributions reach every agent. all_to_all: each agent writes its "
-           "own to every other, N (N - 1) deliveries a step. tree: the members form a tree "
-           "of tree_fanout children per relay (by ascending id); each agent sends its "
-           "subtree's contributions up as one batch and the root's batch of all of them "
-           "comes back down, 2 (N - 1) deliveries a step, the same estimates bit for bit "
-           "(docs/SCALING.md). Relays are trusted to forward unchanged.");
+           "own on deif/contribution to every other, N (N - 1) deliveries a step. tree: the "
+           "members form a tree of tree_fanout children per relay (by ascending id); each "
+           "agent sends its subtree's contributions up as one batch on deif/relay_up and the "
+           "root's batch of all of them comes back down on deif/relay_down, 2 (N - 1) "
+           "deliveries a step, the same estimates bit for bit; relays are trusted to forward "
+           "unchanged (docs/SCALING.md). auto: the tree from 17 agents on, unless "
+           "security.enabled, ros2_naming or discovery: server; all_to_all otherwise.");
   t.Add("tree_fanout", [](Config& c) -> auto& { return c.network.tree_fanout; })
       .Default(4)
       .AtLeast(1)

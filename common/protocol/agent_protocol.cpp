@@ -151,8 +151,11 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
     return;
   }
   Peer& peer = peers_[msg.agent_id];
-  if (!peer.alive) {
-    peer.alive = true;  // a sample from its writer: it lives
+  // A sample from its writer: it lives. Not one relayed by the tree exchange from a writer
+  // seen lost: a relay's history holds the contributions of the dead too; its liveliness
+  // says when it is back (docs/SCALING.md).
+  if (!peer.alive && !(relaying_ && peer.lost_once)) {
+    peer.alive = true;
     ++membership_version_;
     Log(LogLevel::kInfo, who + " is a member; members now " + std::to_string(Members().size()));
   }
@@ -222,9 +225,9 @@ void AgentProtocol::OnContributions(const std::vector<std::pair<ContributionMsg,
                                     double now_s) {
   // The same as one OnContribution after another, with one recomputation of the steps they
   // touch instead of one per contribution (a batch of the tree exchange holds N of them).
-  deferring_ = true;
+  deferring_ = relaying_ = true;
   for (const auto& [msg, from] : batch) OnContribution(msg, from, now_s);
-  deferring_ = false;
+  deferring_ = relaying_ = false;
   if (finished_ || !started_) return;
   Advance(now_s);
 }
@@ -259,7 +262,10 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
   if (!peer.writer || *peer.writer != writer || peer.alive == alive) return;
   peer.alive = alive;
   ++membership_version_;
-  if (!alive) peer.lost_at_s = now_s;
+  if (!alive) {
+    peer.lost_at_s = now_s;
+    peer.lost_once = true;
+  }
   const std::string members = std::to_string(Members().size());
   if (alive) {
     Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " is alive again; members now " + members);
@@ -912,6 +918,7 @@ bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& 
   }
   writer_ids_.erase(*peer.writer);
   peer.writer = from;
+  peer.lost_once = false;  // a new writer: the agent restarted
   peer.instance_token = msg.instance_token;
   writer_ids_[from] = msg.agent_id;
   Log(LogLevel::kInfo, who + " rejoined with a new writer " + ToString(from));

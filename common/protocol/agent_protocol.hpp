@@ -104,8 +104,10 @@ class AgentProtocol {
   void Start(double now_s);
   void OnRange(const RangeMsg& msg, const SenderKey& from, double now_s);
   void OnContribution(const ContributionMsg& msg, const SenderKey& from, double now_s);
-  // Several contributions at once (a batch of the tree exchange): the same outcome as
-  // OnContribution for each in order, with the estimates recomputed once.
+  // Several contributions at once, forwarded by a relay of the tree exchange: the same
+  // outcome as OnContribution for each in order, with the estimates recomputed once, except
+  // that a contribution of a writer seen lost does not make it a member again (only its
+  // liveliness does: a relay's history holds contributions of the dead).
   void OnContributions(const std::vector<std::pair<ContributionMsg, SenderKey>>& batch, double now_s);
   // A remote writer's liveliness changed: a peer's contribution writer, or the target's
   // range writer.
@@ -189,6 +191,7 @@ class AgentProtocol {
     std::uint64_t instance_token = 0;
     bool alive = false;
     double lost_at_s = 0.0;  // when it was last seen lost
+    bool lost_once = false;  // this writer was seen lost at least once
     std::optional<std::pair<StepIndex, Vector2>> last_position;  // (step, position)
     StepIndex last_step = 0;  // of its newest valid contribution
   };
@@ -240,6 +243,7 @@ class AgentProtocol {
   bool finished_ = false;
   std::uint64_t membership_version_ = 0;
   bool deferring_ = false;                // within OnContributions
+  bool relaying_ = false;                 // ... whose contributions a relay forwarded
   std::optional<StepIndex> dirty_from_;   // held while deferring, not yet recomputed
   std::vector<AgentAction> actions_;
   AgentCounters counters_;

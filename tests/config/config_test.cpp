@@ -159,6 +159,14 @@ TEST_CASE("Every bad config is rejected with a message naming key, line and rule
       {"security through a Discovery Server",
        "network:\n  security: {enabled: true, dir: certs}\n  discovery: server\n",
        "network.discovery", "security.enabled needs discovery: simple", 3},
+      {"tree exchange with security",
+       "network:\n  security: {enabled: true, dir: certs}\n  exchange: tree\n", "network.exchange",
+       "exchange: tree needs security.enabled: false", 3},
+      {"tree exchange with ROS 2 naming", "network:\n  ros2_naming: true\n  exchange: tree\n",
+       "network.exchange", "exchange: tree needs ros2_naming: false", 3},
+      {"unknown exchange", "network:\n  exchange: gossip\n", "network.exchange",
+       "allowed: auto, all_to_all, tree", 2},
+      {"tree fan-out zero", "network:\n  tree_fanout: 0\n", "network.tree_fanout", "must be in 1..64", 2},
       {"beta zero", "sensing:\n  beta: 0\n", "sensing.beta", "positive integer or -1", 2},
       {"beta fractional", "sensing:\n  beta: 1.5\n", "sensing.beta", "positive integer or -1",
        2},
@@ -399,4 +407,17 @@ TEST_CASE("ToYaml round-trips the defaults, including an unlimited sensing range
   CHECK(b.agents.initial_angles_rad.empty());
   CHECK(b.faults.empty());
   CHECK(deif::ToYaml(b) == deif::ToYaml(a));
+}
+
+TEST_CASE("network.exchange: auto is the tree from 17 agents on, in plain runs only", "[config]") {
+  const auto effective = [](const std::string& yaml) { return deif::EffectiveExchange(deif::ParseConfig(yaml, "inline")); };
+  CHECK(effective("agents: {count: 16}\n") == deif::ExchangeKind::kAllToAll);
+  CHECK(effective("agents: {count: 17}\n") == deif::ExchangeKind::kTree);
+  CHECK(effective("agents: {count: 64}\nnetwork: {security: {enabled: true, dir: certs}}\n") ==
+        deif::ExchangeKind::kAllToAll);
+  CHECK(effective("agents: {count: 64}\nnetwork: {ros2_naming: true}\n") == deif::ExchangeKind::kAllToAll);
+  CHECK(effective("agents: {count: 64}\nnetwork: {discovery: server}\n") == deif::ExchangeKind::kAllToAll);
+  // Chosen explicitly, either holds at any size.
+  CHECK(effective("agents: {count: 64}\nnetwork: {exchange: all_to_all}\n") == deif::ExchangeKind::kAllToAll);
+  CHECK(effective("agents: {count: 2}\nnetwork: {exchange: tree}\n") == deif::ExchangeKind::kTree);
 }

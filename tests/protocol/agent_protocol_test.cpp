@@ -1047,3 +1047,61 @@ TEST_CASE("Before its first range an agent waits while a target of its run is up
   CHECK(begun.first == 62.0);
   CHECK(begun.second == protocol::kExitRuntimeError);
 }
+
+TEST_CASE("Contributions delivered as one batch give what one by one gives, bit for bit",
+          "[protocol][tree]") {
+  // GIVEN two identical networks whose contributions to agent 1 are held back each step
+  ScriptedNetwork single(kThreeAgents), batched(kThreeAgents);
+  single.Start();
+  batched.Start();
+  const auto to_1 = [](const Envelope& e) {
+    return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
+  };
+  for (int round = 0; round < 12; ++round) {
+    single.Pump(to_1);
+    batched.Pump(to_1);
+    // WHEN agent 1 gets them one by one in one network and as one batch in the other
+    REQUIRE(single.held.size() == batched.held.size());
+    for (const Envelope& e : single.held) single.Deliver(e);
+    batched.DeliverBatch(1, std::vector<Envelope>(batched.held.begin(), batched.held.end()));
+    single.held.clear();
+    batched.held.clear();
+  }
+  // THEN its rows are the same, complete, bit for bit
+  const auto& a = single.rows.at(1);
+  const auto& b = batched.rows.at(1);
+  REQUIRE(a.size() >= 10);
+  REQUIRE(a.size() == b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    CHECK(a[i].step == b[i].step);
+    CHECK(a[i].fused == 3);
+    CHECK(b[i].fused == 3);
+    CHECK(a[i].estimate_m == b[i].estimate_m);
+    CHECK(a[i].covariance == b[i].covariance);
+  }
+}
+
+TEST_CASE("A relayed contribution of a peer seen lost does not make it a member again",
+          "[protocol][tree]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  const protocol::ContributionMsg old = ValidContributionFrom(net, 2, 2);
+  // GIVEN agent 1 saw agent 2's writer lost (past the grace)
+  net.Liveliness(1, 2, false);
+  net.AdvanceTime(1.0);
+  REQUIRE(net.agents.at(1)->Members().count(2) == 0);
+  // WHEN a relay's history brings one of 2's old contributions
+  net.agents.at(1)->OnContributions({{old, KeyOf(2)}}, net.now);
+  // THEN 2 stays out; its liveliness brings it back
+  CHECK(net.agents.at(1)->Members().count(2) == 0);
+  CHECK(net.agents.at(1)->LostPeers().count(2) == 1);
+  net.Liveliness(1, 2, true);
+  CHECK(net.agents.at(1)->Members().count(2) == 1);
+  // A contribution straight from its writer still does, as before (all to all).
+  net.Liveliness(1, 3, false);
+  net.AdvanceTime(1.0);
+  REQUIRE(net.agents.at(1)->Members().count(3) == 0);
+  net.agents.at(1)->OnContribution(ValidContributionFrom(net, 3, 2), KeyOf(3), net.now);
+  CHECK(net.agents.at(1)->Members().count(3) == 1);
+}

@@ -123,6 +123,17 @@ class ScriptedNetwork {
     Collect(e.to);
   }
 
+  // Delivers contributions to agent `to` at once, as a relay's batch does
+  // (AgentProtocol::OnContributions).
+  void DeliverBatch(AgentId to, const std::vector<Envelope>& batch) {
+    std::vector<std::pair<ContributionMsg, SenderKey>> contributions;
+    for (const Envelope& e : batch) {
+      contributions.emplace_back(std::get<ContributionMsg>(e.message), KeyOf(e.from, incarnation[e.from]));
+    }
+    agents.at(to)->OnContributions(contributions, now);
+    Collect(to);
+  }
+
   void ReleaseHeld() {
     std::deque<Envelope> release;
     release.swap(held);
