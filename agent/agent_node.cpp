@@ -68,16 +68,17 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   if (EffectiveExchange(config_) == ExchangeKind::kTree) {
     // Relay partitions (docs/SCALING.md): up.<id> holds the batches of this agent's
     // children, down.<id> its own batches to them; the writer up and the reader down move
-    // to the parent's as the tree changes. It starts as the root of a tree of itself.
+    // to the parent's as the tree changes. It starts in the tree of every agent of the run.
+    tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
+                                                            node_.WriterKey(dds::Topic::kContribution)});
     const std::string self = std::to_string(id_);
-    node_.SetSubPartitions(dds::Topic::kRelayUp, "up.none", "up." + self);
-    node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down.none");
+    const std::string parent = tree_->place().parent ? std::to_string(*tree_->place().parent) : "none";
+    node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + parent, "up." + self);
+    node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + parent);
     node_.AddWriter(dds::Topic::kRelayUp);
     node_.AddWriter(dds::Topic::kRelayDown);
     node_.AddReader({dds::Topic::kRelayUp, {}});
     node_.AddReader({dds::Topic::kRelayDown, {}});
-    tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
-                                                            node_.WriterKey(dds::Topic::kContribution)});
   }
   if (node_.AuthenticationRestarts() > 0) {
     context_.log->warn("authentication with a peer stalled at start; participant created anew {} "
@@ -148,7 +149,9 @@ int AgentNode::Run() {
     }
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    if (tree_) {
+    // The members the tree is made of, once the run has begun (before, discovery is still
+    // going on and the tree of every agent of the run stands).
+    if (tree_ && tree_live_) {
       const auto version = std::make_pair(node_.ParticipantsVersion(), protocol_.membership_version());
       if (version != tree_version_) {  // only then: building the members costs
         tree_version_ = version;
@@ -230,6 +233,7 @@ void AgentNode::Dispatch(const dds::Event& event, double now_s) {
       const char* reason = protocol::ValidateRange(range->msg, config_, id_);
       if (reason == nullptr || protocol::IsMeasurementReason(reason)) {
         tree_->OnRollCall(range->msg.step, range->msg.roll_call, now_s);
+        tree_live_ = true;
       }
     }
     protocol_.OnRange(range->msg, range->from, now_s);

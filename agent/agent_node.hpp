@@ -61,6 +61,7 @@ class AgentNode : public dds::Application {
   std::optional<protocol::TreeExchange> tree_;  // network.exchange: tree
   // The participants' and the protocol's membership versions the tree was last made from.
   std::pair<std::uint64_t, std::uint64_t> tree_version_{~0ull, ~0ull};
+  bool tree_live_ = false;  // the run has begun: the tree follows the members
   std::optional<AgentCsv> csv_;
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;

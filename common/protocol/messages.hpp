@@ -81,8 +81,12 @@ struct BatchMsg {
   bool down = false;  // the topic it travels on (not a field on the wire)
   std::vector<RelayedContribution> items;
 };
-// Most contributions in one batch sample (the bound of idl/deif.idl); more go in several.
+// Most contributions in one batch sample (the bound of idl/deif.idl).
 inline constexpr std::size_t kMaxBatchItems = 256;
+// Most contributions a relay puts in one sample; more go in several. About 18 KB: over UDP
+// one datagram of at most 13 IP fragments (a batch of 128, 36 KB, between 4 hosts lost
+// whole datagrams under load and steps with them; docs/SCALING.md).
+inline constexpr std::size_t kSentBatchItems = 64;
 
 // deif/agent_state: agent -> target (and observers), one per agent and step.
 struct StateMsg {

@@ -45,14 +45,26 @@ std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, 
   return out;
 }
 
+double RelayWaitS(const Config& config) {
+  // In lock-step nothing is gained by forwarding part of a step early: a relay waits for
+  // its children up to a quarter of step_timeout_s (a lost child leaves the members sooner).
+  // Partial batches and the late ones after them only cost samples.
+  if (config.scenario.mode == StepMode::kLockStep) {
+    return std::max(config.network.relay_wait_s, 0.25 * config.network.step_timeout_s);
+  }
+  return config.network.relay_wait_s;
+}
+
 TreeExchange::TreeExchange(const Config& config, Options options)
     : config_(config),
       options_(options),
       fanout_(std::max(1, config.network.tree_fanout)),
-      wait_s_(config.network.relay_wait_s),
+      wait_s_(RelayWaitS(config)),
       keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)) {
-  members_ = {options_.self};
-  sorted_ = {options_.self};
+  for (AgentId id = 1; id <= static_cast<AgentId>(config.agents.count); ++id) members_.insert(id);
+  members_.insert(options_.self);
+  sorted_.assign(members_.begin(), members_.end());
+  place_ = PlaceInTree(sorted_, options_.self, fanout_);
 }
 
 void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
@@ -257,10 +269,10 @@ std::vector<RelayedContribution> TreeExchange::Drain(std::vector<std::pair<StepI
 }
 
 void TreeExchange::Send(bool down, StepIndex step, std::vector<RelayedContribution> items) {
-  // In samples of at most kMaxBatchItems; the step is reported with the last.
+  // In samples of at most kSentBatchItems; the step is reported with the last.
   std::size_t begin = 0;
   do {
-    const std::size_t end = std::min(items.size(), begin + kMaxBatchItems);
+    const std::size_t end = std::min(items.size(), begin + kSentBatchItems);
     BatchMsg batch;
     batch.run = options_.run;
     batch.sender_id = options_.self;
@@ -276,18 +288,30 @@ void TreeExchange::OnTimer(double now_s) {
   for (auto& [step, s] : steps_) {
     if (!s.flushed) TryFlush(step, now_s);
   }
-  // What arrived for steps whose batch is gone goes on at once.
+  // What arrived for steps whose batch is gone goes on soon, gathered for half a wait:
+  // one late sample, not one per late child.
+  bool late = false;
   for (const auto& entry : Root() ? unsent_down_ : unsent_up_) {
     auto s = steps_.find(entry.first);
     if (s != steps_.end() && s->second.flushed) {
-      SendOutward(0);
-      return;
+      late = true;
+      break;
     }
+  }
+  if (!late) {
+    late_since_.reset();
+    return;
+  }
+  if (!late_since_) late_since_ = now_s;
+  if (now_s >= *late_since_ + 0.5 * wait_s_) {
+    late_since_.reset();
+    SendOutward(0);
   }
 }
 
 std::optional<double> TreeExchange::NextDeadline() const {
   std::optional<double> next;
+  if (late_since_) next = *late_since_ + 0.5 * wait_s_;
   for (const auto& [step, s] : steps_) {
     if (s.flushed || s.first_s < 0.0) continue;
     const double due = s.first_s + wait_s_;

@@ -43,6 +43,10 @@ TreePlace PlaceInTree(const std::vector<AgentId>& members, AgentId self, int fan
 // The ids of the subtree under `id` (itself included); empty if `id` is not a member.
 std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, int fanout);
 
+// How long a relay waits for its children's batches of a step: network.relay_wait_s in real
+// time; in lock-step at least a quarter of network.step_timeout_s.
+double RelayWaitS(const Config& config);
+
 namespace tree_action {
 struct Send {  // batch.down: to the children (deif/relay_down), else to the parent
   BatchMsg batch;
@@ -70,7 +74,9 @@ class TreeExchange {
     SenderKey own_writer{};  // this agent's writer of deif/contribution
   };
   // The config must outlive the exchange (network.tree_fanout, relay_wait_s, history_steps,
-  // fusion_window_steps, agents.count). Starts as the root of a tree of itself alone.
+  // fusion_window_steps, agents.count). Starts in the tree of every agent of the run
+  // (1..agents.count): the one a run has once all its agents are up, so that relays need
+  // not move while discovery goes on (each move is announced to every participant).
   TreeExchange(const Config& config, Options options);
 
   // The members the tree is made of (this agent is added); a change may move this agent to
@@ -131,6 +137,7 @@ class TreeExchange {
   TreePlace place_;
   std::map<StepIndex, StepState> steps_;
   StepIndex newest_ = 0;  // the newest step of a roll call or of this agent's own
+  std::optional<double> late_since_;  // late items wait to go on since then
   // Items (step, origin id) stored and not yet sent up / down, in arrival order.
   std::vector<std::pair<StepIndex, AgentId>> unsent_up_, unsent_down_;
   std::vector<TreeAction> actions_;

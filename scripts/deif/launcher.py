@@ -362,7 +362,10 @@ class Launcher:
     def _default_timeout(self):
         net = self.cfg["network"]
         per_step = float(self.cfg["scenario"]["period_s"]) if self.realtime else 0.05
-        return (60.0 + 2 * float(net["start_timeout_s"]) + self.steps * per_step * 1.5
+        # Discovery grows as N^2 (every endpoint is announced to every participant): 128
+        # agents on 4 namespace hosts took 80-130 s to start on 2 cores.
+        return (60.0 + 2 * float(net["start_timeout_s"]) + self.n ** 2 / 200.0
+                + self.steps * per_step * 1.5
                 + len(self.faults) * (float(net["start_timeout_s"]) + 5.0))
 
     # ------------------------------------------------------------------ processes

@@ -23,9 +23,11 @@ namespace {
 
 constexpr protocol::RunToken kRun = 77;
 
+// Real time, so that relays wait relay_wait_s (RelayWaitS).
 deif::Config ConfigFor(int agents, int fanout, double wait_s = 0.02) {
-  return deif::ParseConfig("agents: {count: " + std::to_string(agents) + "}\nnetwork: {exchange: tree, tree_fanout: " +
-                               std::to_string(fanout) + ", relay_wait_s: " + std::to_string(wait_s) + "}\n",
+  return deif::ParseConfig("scenario: {mode: realtime, period_s: 0.1}\nagents: {count: " + std::to_string(agents) +
+                               "}\nnetwork: {exchange: tree, tree_fanout: " + std::to_string(fanout) +
+                               ", relay_wait_s: " + std::to_string(wait_s) + "}\n",
                            "inline");
 }
 
@@ -68,6 +70,13 @@ struct Network {
   void SetMembers(const std::set<AgentId>& members, double now_s) {
     for (auto& [id, agent] : agents) {
       if (members.count(id) > 0) agent->SetMembers(members, now_s);
+    }
+    Pump(now_s);
+  }
+  // Every live agent's timer at now_s (the waits that are over), then what it sends.
+  void Tick(double now_s) {
+    for (auto& [id, agent] : agents) {
+      if (dead.count(id) == 0) agent->OnTimer(now_s);
     }
     Pump(now_s);
   }
@@ -197,10 +206,15 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   CHECK_FALSE(up.down);
   CHECK(up.step == 1);
   REQUIRE(up.items.size() == 2);
-  // 4's batch, late: delivered here and sent up at once, as a batch of late ones.
+  // 4's batch, late: delivered here at once and sent up half a wait later, as a batch of
+  // late ones (with whatever else came late meanwhile).
   BatchMsg from4{kRun, 4, 1, false, {{WriterOf(4), Contribution(4, 1)}}};
   relay.OnBatch(from4, 1.3);
   actions = relay.TakeActions();
+  REQUIRE(relay.NextDeadline().has_value());
+  CHECK(*relay.NextDeadline() == Approx(1.325));
+  relay.OnTimer(1.325);
+  for (auto& a : relay.TakeActions()) actions.push_back(std::move(a));
   int sends = 0, delivers = 0;
   for (const auto& a : actions) {
     if (const auto* s = std::get_if<protocol::tree_action::Send>(&a)) {
@@ -214,6 +228,14 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   }
   CHECK(sends == 1);
   CHECK(delivers == 1);
+}
+
+TEST_CASE("In lock-step a relay waits a quarter of the step timeout at least", "[protocol][tree]") {
+  CHECK(protocol::RelayWaitS(deif::ParseConfig("network: {relay_wait_s: 0.01, step_timeout_s: 2}\n", "inline")) ==
+        Approx(0.5));
+  CHECK(protocol::RelayWaitS(deif::ParseConfig("network: {relay_wait_s: 0.9, step_timeout_s: 2}\n", "inline")) ==
+        Approx(0.9));
+  CHECK(protocol::RelayWaitS(ConfigFor(4, 2, 0.01)) == Approx(0.01));
 }
 
 TEST_CASE("A relay waits only for children with a measured agent below them", "[protocol][tree]") {
@@ -247,15 +269,15 @@ TEST_CASE("When a relay is lost its subtree moves to a new parent and what it he
   for (AgentId a = 1; a <= 13; ++a) {
     if (a != 2) members.insert(a);
   }
-  for (auto& [id, agent] : net.agents) {
-    if (id != 2) agent->OnTimer(2.1);  // the waits for 2 are over
-  }
-  net.Pump(2.1);
+  net.Tick(2.1);  // the waits for 2 are over
+  net.Tick(2.2);  // and the late ones have gone on
   net.SetMembers(members, 3.0);
+  for (double t : {3.1, 3.2, 3.3}) net.Tick(t);  // late ones wait half a wait at each level
   REQUIRE_FALSE(net.reparents[5].empty());
   CHECK(net.reparents[5].back() == 1);
   for (AgentId a : members) {
     for (AgentId j : members) {
+      INFO("agent " << a << " of " << j);
       if (a != j) CHECK(net.delivered[a][{2, j}] == 1);
     }
   }
