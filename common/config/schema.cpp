@@ -598,9 +598,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .AtLeast(0.0)
       .AtMost(10.0)
       .Unit("s")
-      .Doc("exchange: tree: how long a relay waits for its children's batches of a step "
-           "before it forwards what it holds; what comes later is forwarded as it arrives "
-           "and fused late. In realtime mode keep it well within the period.");
+      .Doc("exchange: tree, realtime mode: how long a relay waits for its children's batches "
+           "of a step before it forwards what it holds; what comes later goes on, gathered "
+           "for half this time, and is fused late. Keep it well within the period. In "
+           "lockstep a relay waits at least a quarter of step_timeout_s.");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
       .Default(TransportKind::kShm)
       .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "
