@@ -87,6 +87,13 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   }
   context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
                      config_.network.domain_id, instance_token_);
+  if (tree_) {
+    context_.log->info("exchange: tree, fan-out {}, parent {} (docs/SCALING.md)", config_.network.tree_fanout,
+                       tree_->place().parent ? "agent " + std::to_string(*tree_->place().parent)
+                                             : std::string("none, the root"));
+  } else {
+    context_.log->info("exchange: all to all");
+  }
 }
 
 void AgentNode::Stop() {

@@ -655,6 +655,20 @@ def test_tree_equality(work, domain):
         assert relay_log_lines(res.out_dir, j) == []
 
 
+def test_tree_auto(work, domain):
+    """20 agents with the default exchange (auto): the tree, fan-out 4; every agent fuses all
+    twenty at every step and equals the in-process simulation bit for bit."""
+    res = launch(work, domain, agents=20, steps=60)
+    assert res.ok, res.why_not_ok()
+    for j in range(1, 21):
+        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+            assert "exchange: tree, fan-out 4" in f.read()
+        assert all(r["fused"] == "20" and r["complete"] == "1" for r in rows(res.out_dir, j))
+        assert steps_of(res.out_dir, j) == list(range(1, 61))
+    worst, n = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 21))
+    assert n == 1200 and worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+
+
 def test_tree_relay_killed(work, domain):
     """N=7 over the tree: relay 2 (parent of 4 and 5) killed at step 60, then relay 3's child
     7 at 120. Its children move to a new parent and what they held reaches everyone: every
