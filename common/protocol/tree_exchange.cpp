@@ -112,14 +112,15 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
 }
 
 TreeExchange::StepState* TreeExchange::StateOf(StepIndex step, double now_s) {
-  if (step < 1 || step < newest_ - keep_ || step > newest_ + keep_) return nullptr;
+  // step >= 1 and 0 <= newest_ <= scenario.steps: the differences cannot overflow.
+  if (step < 1 || newest_ - step > keep_ || step - newest_ > keep_) return nullptr;
   StepState& s = steps_[step];
   if (s.first_s < 0.0) s.first_s = now_s;
   return &s;
 }
 
 void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s) {
-  if (step < 1) return;
+  if (step < 1 || step > config_.scenario.steps) return;
   newest_ = std::max(newest_, step);
   Trim();
   StepState* s = StateOf(step, now_s);
@@ -129,6 +130,7 @@ void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_c
 }
 
 void TreeExchange::OnOwn(const ContributionMsg& msg, double now_s) {
+  if (msg.step < 1 || msg.step > config_.scenario.steps) return;
   newest_ = std::max(newest_, msg.step);
   Trim();
   StepState* s = StateOf(msg.step, now_s);

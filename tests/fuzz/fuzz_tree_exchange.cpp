@@ -54,8 +54,8 @@ protocol::SenderKey WriterOf(AgentId id) {
   return key;
 }
 
-// Mostly a valid contribution of a near step; sometimes any field fuzzed.
-protocol::ContributionMsg Contribution(FuzzInput& in, const Config& config, AgentId id, StepIndex step) {
+// A valid contribution (what the step protocol hands the relay as its own).
+protocol::ContributionMsg ValidContribution(const Config& config, AgentId id, StepIndex step) {
   protocol::ContributionMsg c;
   c.run = kRun;
   c.agent_id = id;
@@ -67,6 +67,12 @@ protocol::ContributionMsg Contribution(FuzzInput& in, const Config& config, Agen
   const int dim = config.filter.motion_model.StateDim();
   c.basis.y = deif::StateVector::Zero(dim);
   c.basis.Y = deif::StateMatrix::Identity(dim, dim);
+  return c;
+}
+
+// Mostly a valid contribution of a near step; sometimes any field fuzzed (a peer's).
+protocol::ContributionMsg Contribution(FuzzInput& in, const Config& config, AgentId id, StepIndex step) {
+  protocol::ContributionMsg c = ValidContribution(config, id, step);
   const std::uint8_t fuzz = in.Byte();
   if ((fuzz & 0x01u) != 0) c.info_vector = in.Vec2();
   if ((fuzz & 0x02u) != 0) c.info_matrix(0, 1) = in.Double();
@@ -133,7 +139,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         break;
       }
       case 1:  // its own contribution of the current step
-        relay.OnOwn(Contribution(in, config, self, step), now);
+        relay.OnOwn(ValidContribution(config, self, step), now);
         break;
       case 2: {  // the roll call of a step (ids fuzzed)
         std::vector<AgentId> roll;
@@ -155,8 +161,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         now += 0.001 * static_cast<double>(in.Byte());
         relay.OnTimer(now);
         break;
-      case 5:  // the next step
-        step += 1 + in.Byte() % 3;
+      case 5:  // the next step (within the run, as the step protocol's own are)
+        step = 1 + (step + in.Byte() % 3) % config.scenario.steps;
         break;
       default:  // up to its next deadline
         if (const auto due = relay.NextDeadline()) {
