@@ -328,8 +328,22 @@ std::vector<TreeAction> TreeExchange::TakeActions() {
   return out;
 }
 
+std::size_t TreeExchange::kept_items() const {
+  std::size_t n = 0;
+  for (const auto& entry : steps_) n += entry.second.items.size();
+  return n;
+}
+
 void TreeExchange::Trim() {
   while (!steps_.empty() && steps_.begin()->first < newest_ - keep_) steps_.erase(steps_.begin());
+  // Queued items of steps no longer kept: a root never sends up, a leaf cut off from its
+  // parent never sends down, and neither queue may grow with the run.
+  const StepIndex oldest = newest_ - keep_;
+  for (auto* queue : {&unsent_up_, &unsent_down_}) {
+    queue->erase(std::remove_if(queue->begin(), queue->end(),
+                                [oldest](const std::pair<StepIndex, AgentId>& e) { return e.first < oldest; }),
+                 queue->end());
+  }
 }
 
 }  // namespace deif::protocol

@@ -96,6 +96,9 @@ class TreeExchange {
 
   const TreePlace& place() const { return place_; }
   const std::set<AgentId>& members() const { return members_; }
+  // What it holds: contributions of the kept steps, and queued entries not yet sent.
+  std::size_t kept_items() const;
+  std::size_t queued() const { return unsent_up_.size() + unsent_down_.size(); }
 
  private:
   struct StepState {

@@ -333,3 +333,33 @@ TEST_CASE("Bad batches and items are refused and never delivered", "[protocol][t
   for (const auto& a : relay.TakeActions()) delivered += std::holds_alternative<protocol::tree_action::Deliver>(a);
   CHECK(delivered == 1);
 }
+
+TEST_CASE("What a relay keeps stays bounded however long the run", "[protocol][tree]") {
+  // The root (which never sends up) and a leaf whose parent never sends down, 2000 steps.
+  const deif::Config config = deif::ParseConfig(
+      "scenario: {steps: 5000, mode: realtime, period_s: 0.1}\nagents: {count: 3}\n"
+      "network: {exchange: tree, tree_fanout: 2, history_steps: 5, fusion_window_steps: 1}\n",
+      "inline");
+  TreeExchange root(config, TreeExchange::Options{1, kRun, WriterOf(1)});
+  TreeExchange leaf(config, TreeExchange::Options{3, kRun, WriterOf(3)});
+  std::size_t root_sent = 0, leaf_sent = 0;
+  for (StepIndex k = 1; k <= 2000; ++k) {
+    const double t = 0.1 * static_cast<double>(k);
+    root.OnRollCall(k, {1, 2, 3}, t);
+    root.OnOwn(Contribution(1, k), t);
+    root.OnBatch(BatchMsg{kRun, 2, k, false, {{WriterOf(2), Contribution(2, k)}}}, t);
+    root.OnBatch(BatchMsg{kRun, 3, k, false, {{WriterOf(3), Contribution(3, k)}}}, t);
+    leaf.OnRollCall(k, {1, 2, 3}, t);
+    leaf.OnOwn(Contribution(3, k), t);
+    root.OnTimer(t + 0.05);
+    leaf.OnTimer(t + 0.05);
+    for (const auto& a : root.TakeActions()) root_sent += std::holds_alternative<protocol::tree_action::Send>(a);
+    for (const auto& a : leaf.TakeActions()) leaf_sent += std::holds_alternative<protocol::tree_action::Send>(a);
+    REQUIRE(root.kept_items() <= 3 * 7);  // history + window + 1 steps of 3 contributions
+    REQUIRE(root.queued() <= 2 * 3 * 7);
+    REQUIRE(leaf.kept_items() <= 3 * 7);
+    REQUIRE(leaf.queued() <= 2 * 3 * 7);
+  }
+  CHECK(root_sent == 2000);  // one down batch a step
+  CHECK(leaf_sent == 2000);  // one up batch a step
+}
