@@ -171,6 +171,17 @@ fdds::DataWriterQos WriterQos(Topic topic, const Config& config) {
   // than a step (docs/FASTDDS_NOTES.md). Heartbeats are sent only while samples are unacked.
   auto& times = qos.reliable_writer_qos().times;
   times.heartbeatPeriod = DdsDuration(EffectiveTimings(config).heartbeat_period_s);
+  if ((topic == Topic::kRelayUp || topic == Topic::kRelayDown) &&
+      config.scenario.mode == StepMode::kRealTime) {
+    // In real time a lost batch delays every agent below it past its deadline: a relay
+    // writer has at most tree_fanout readers, so its heartbeats grow as N, and within the
+    // same budget repair far sooner (20 agents, 3 hosts, 10 % loss, 10 Hz: 97 % of the
+    // agent-steps complete against 81 %). Not in lock-step, where on one busy host slow
+    // acknowledgements drew more heartbeats and cost 20 % of the steps a second
+    // (docs/BENCHMARKS.md, "The tree exchange, measured 2026-11-26").
+    times.heartbeatPeriod = DdsDuration(std::max(config.network.heartbeat_period_s,
+                                                 2.0 * config.agents.count / kHeartbeatBudgetPerS));
+  }
   times.nackResponseDelay = DdsDuration(config.network.nack_response_delay_s);
   times.nackSupressionDuration = Duration_t(0, 0);
   qos.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;

@@ -60,6 +60,11 @@ TreeExchange::TreeExchange(const Config& config, Options options)
       options_(options),
       fanout_(std::max(1, config.network.tree_fanout)),
       wait_s_(RelayWaitS(config)),
+      // Late ones are gathered for half a wait in lock-step (a sample per late child
+      // overran a relay's history between 4 hosts), sent at once in real time, where every
+      // hop of delay is a deadline missed (at 10 % loss, 3 hosts, 20 agents: 85 % of the
+      // agent-steps complete against 71 %).
+      late_gather_s_(config.scenario.mode == StepMode::kLockStep ? 0.5 * wait_s_ : 0.0),
       keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)) {
   for (AgentId id = 1; id <= static_cast<AgentId>(config.agents.count); ++id) members_.insert(id);
   members_.insert(options_.self);
@@ -290,8 +295,8 @@ void TreeExchange::OnTimer(double now_s) {
   for (auto& [step, s] : steps_) {
     if (!s.flushed) TryFlush(step, now_s);
   }
-  // What arrived for steps whose batch is gone goes on soon, gathered for half a wait:
-  // one late sample, not one per late child.
+  // What arrived for steps whose batch is gone goes on soon: in lock-step gathered for
+  // half a wait (one late sample, not one per late child), in real time at once.
   bool late = false;
   for (const auto& entry : Root() ? unsent_down_ : unsent_up_) {
     auto s = steps_.find(entry.first);
@@ -305,7 +310,7 @@ void TreeExchange::OnTimer(double now_s) {
     return;
   }
   if (!late_since_) late_since_ = now_s;
-  if (now_s >= *late_since_ + 0.5 * wait_s_) {
+  if (now_s >= *late_since_ + late_gather_s_) {
     late_since_.reset();
     SendOutward(0);
   }
@@ -313,7 +318,7 @@ void TreeExchange::OnTimer(double now_s) {
 
 std::optional<double> TreeExchange::NextDeadline() const {
   std::optional<double> next;
-  if (late_since_) next = *late_since_ + 0.5 * wait_s_;
+  if (late_since_) next = *late_since_ + late_gather_s_;
   for (const auto& [step, s] : steps_) {
     if (s.flushed || s.first_s < 0.0) continue;
     const double due = s.first_s + wait_s_;

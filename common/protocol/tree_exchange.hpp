@@ -133,6 +133,7 @@ class TreeExchange {
   const Options options_;
   const int fanout_;
   const double wait_s_;
+  const double late_gather_s_;
   const StepIndex keep_;  // steps kept behind (and ahead of) the newest roll call
 
   std::set<AgentId> members_;

@@ -690,7 +690,8 @@ def test_tree_relay_killed(work, domain):
 def test_tree_frozen_relay(work, domain):
     """N=7 over the tree in real time (10 Hz): relay 2 frozen (SIGSTOP) for 3 s from step 40.
     Its subtree and the rest go on without it; once it resumes, every contribution it and
-    its subtree missed is fused late and every agent ends with the same estimates."""
+    its subtree missed is fused late: the agents agree before the freeze and from 30 steps
+    after the resume on, bit for bit."""
     faults = [launcher.Fault(40, "stop", 2), launcher.Fault(70, "cont", 2)]
     res = launch(work, domain, agents=7, steps=150, faults=faults,
                  overrides=TREE + ["scenario.mode=realtime", "scenario.period_s=0.1"])
@@ -705,4 +706,8 @@ def test_tree_frozen_relay(work, domain):
             r = last[j][k]
             assert r["x_est"] == ref["x_est"] and r["p_xx"] == ref["p_xx"], (j, k)
             assert r["fused"] == "7"
-    assert res.summary["metrics"]["agreement_fraction"] >= 0.9
+    # Disagreement only from the freeze to 30 steps after the resume (the frozen relay's
+    # own rows of the freeze, then its catch-up); exact agreement before and after.
+    differing = [k for k in map(str, range(1, 151))
+                 if len({last[j][k]["x_est"] for j in range(1, 8) if k in last[j]}) > 1]
+    assert all(40 <= int(k) <= 100 for k in differing), differing
