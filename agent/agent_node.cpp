@@ -10,8 +10,6 @@
 
 #include <nlohmann/json.hpp>
 
-#include "common/protocol/validation.hpp"
-
 namespace deif::agent {
 
 namespace {
@@ -71,10 +69,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
     // to the parent's as the tree changes. It starts in the tree of every agent of the run.
     tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
                                                             node_.WriterKey(dds::Topic::kContribution)});
-    const std::string self = std::to_string(id_);
-    const std::string parent = tree_->place().parent ? std::to_string(*tree_->place().parent) : "none";
-    node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + parent, "up." + self);
-    node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + parent);
+    PlaceRelays(tree_->place().parent, /*move=*/false);
     node_.AddWriter(dds::Topic::kRelayUp);
     node_.AddWriter(dds::Topic::kRelayDown);
     node_.AddReader({dds::Topic::kRelayUp, {}});
@@ -89,8 +84,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
                      config_.network.domain_id, instance_token_);
   if (tree_) {
     context_.log->info("exchange: tree, fan-out {}, parent {} (docs/SCALING.md)", config_.network.tree_fanout,
-                       tree_->place().parent ? "agent " + std::to_string(*tree_->place().parent)
-                                             : std::string("none, the root"));
+                       ParentName(tree_->place().parent));
   } else {
     context_.log->info("exchange: all to all");
   }
@@ -235,15 +229,15 @@ bool AgentNode::Authorised(AgentId claimed, const protocol::SenderKey& writer) c
 
 void AgentNode::Dispatch(const dds::Event& event, double now_s) {
   if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
-    if (tree_ && range->msg.run == protocol::RunTokenOf(context_.run_name)) {
-      // Only the roll call of a sound range (the protocol counts the others).
-      const char* reason = protocol::ValidateRange(range->msg, config_, id_);
-      if (reason == nullptr || protocol::IsMeasurementReason(reason)) {
-        tree_->OnRollCall(range->msg.step, range->msg.roll_call, now_s);
+    protocol_.OnRange(range->msg, range->from, now_s);
+    // The relay waits for the roll call the protocol accepted (validated, from its target);
+    // the own contribution that range makes is carried out after this, in Pump.
+    if (tree_) {
+      if (const auto roll_call = protocol_.RollCallOf(range->msg.step)) {
+        tree_->OnRollCall(range->msg.step, *roll_call, now_s);
         tree_live_ = true;
       }
     }
-    protocol_.OnRange(range->msg, range->from, now_s);
   } else if (const auto* batch = std::get_if<dds::Received<protocol::BatchMsg>>(&event)) {
     if (tree_) tree_->OnBatch(batch->msg, now_s);
   } else if (const auto* c = std::get_if<dds::Received<protocol::ContributionMsg>>(&event)) {
@@ -299,12 +293,8 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
     } else if (auto* deliver = std::get_if<act::Deliver>(&action)) {
       deliveries.emplace_back(std::move(deliver->item.msg), deliver->item.origin);  // after the sends
     } else if (const auto* reparent = std::get_if<act::Reparent>(&action)) {
-      const std::string parent = reparent->parent ? std::to_string(*reparent->parent) : "none";
-      const std::string self = std::to_string(id_);
-      node_.MoveSubPartitions(dds::Topic::kRelayUp, "up." + parent, "up." + self);
-      node_.MoveSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + parent);
-      context_.log->info("tree exchange: parent now {} ({} members)",
-                         reparent->parent ? "agent " + parent : std::string("none, the root"),
+      PlaceRelays(reparent->parent, /*move=*/true);
+      context_.log->info("tree exchange: parent now {} ({} members)", ParentName(reparent->parent),
                          tree_->members().size());
     } else if (const auto* reject = std::get_if<act::Reject>(&action)) {
       protocol_.OnRelayRejected(reject->reason, reject->count);
@@ -322,6 +312,24 @@ void AgentNode::Pump() {
     Execute(std::move(actions));
     ExecuteRelay(std::move(relay));
   }
+}
+
+void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
+  // Writer up and reader down in the parent's partitions (none: the root's go nowhere);
+  // reader up and writer down in this agent's own.
+  const std::string p = parent ? std::to_string(*parent) : "none";
+  const std::string self = std::to_string(id_);
+  if (move) {
+    node_.MoveSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
+    node_.MoveSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);
+  } else {
+    node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
+    node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);
+  }
+}
+
+std::string AgentNode::ParentName(std::optional<AgentId> parent) {
+  return parent ? "agent " + std::to_string(*parent) : std::string("none, the root");
 }
 
 std::set<AgentId> AgentNode::TreeMembers() const {

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <optional>
 #include <set>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -43,6 +44,10 @@ class AgentNode : public dds::Application {
   // The members the tree is made of (network.exchange: tree): the agents of the run whose
   // participants are up, less those the protocol saw lost, and this one.
   std::set<AgentId> TreeMembers() const;
+  // Puts the relay endpoints in the partitions of a tree place with `parent`: before they
+  // exist (move false), or moving them (true).
+  void PlaceRelays(std::optional<AgentId> parent, bool move);
+  static std::string ParentName(std::optional<AgentId> parent);
   // Ends Run() when this process can no longer hear (Node::ReceiveStuck): restarts it in
   // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();

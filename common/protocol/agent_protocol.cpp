@@ -942,6 +942,12 @@ void AgentProtocol::OnRelayRejected(const std::string& reason, std::int64_t coun
   Reject("a relay of the tree exchange", reason, count);
 }
 
+std::optional<std::vector<AgentId>> AgentProtocol::RollCallOf(StepIndex k) const {
+  if (auto r = records_.find(k); r != records_.end() && r->second.roll_call) return r->second.roll_call;
+  if (auto p = pending_ranges_.find(k); p != pending_ranges_.end()) return p->second.msg.roll_call;
+  return std::nullopt;
+}
+
 std::set<AgentId> AgentProtocol::LostPeers() const {
   std::set<AgentId> lost;
   for (const auto& [id, peer] : peers_) {

@@ -151,6 +151,9 @@ class AgentProtocol {
   std::optional<InfoState> PosteriorOf(StepIndex k) const;
   // Members believed alive: this agent and every bound peer whose contribution writer lives.
   std::set<AgentId> Members() const;
+  // The roll call of step k as this protocol accepted it from its target (validated, from
+  // the bound writer), while k is pending or within the history; nullopt otherwise.
+  std::optional<std::vector<AgentId>> RollCallOf(StepIndex k) const;
   // Peers whose bound contribution writer was seen lost and has not come back.
   std::set<AgentId> LostPeers() const;
   // Changes whenever a peer is seen alive or lost (LostPeers and Members may have changed).

@@ -70,6 +70,7 @@ TreeExchange::TreeExchange(const Config& config, Options options)
   members_.insert(options_.self);
   sorted_.assign(members_.begin(), members_.end());
   place_ = PlaceInTree(sorted_, options_.self, fanout_);
+  for (AgentId child : place_.children) child_subtrees_.push_back(SubtreeOf(sorted_, child, fanout_));
 }
 
 void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
@@ -80,6 +81,8 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
   const TreePlace old = place_;
   const std::optional<AgentId> old_parent = place_.parent;
   place_ = PlaceInTree(sorted_, options_.self, fanout_);
+  child_subtrees_.clear();
+  for (AgentId child : place_.children) child_subtrees_.push_back(SubtreeOf(sorted_, child, fanout_));
   const bool new_child = std::any_of(place_.children.begin(), place_.children.end(), [&old](AgentId c) {
     return std::find(old.children.begin(), old.children.end(), c) == old.children.end();
   });
@@ -87,28 +90,12 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
     actions_.push_back(tree_action::Reparent{place_.parent});
     // The new parent gets all this agent holds of the kept steps: the old one may have
     // died with it. A new root sends down what it holds and had only sent up.
-    StepIndex report = 0;
-    unsent_up_.clear();
-    for (auto& [step, s] : steps_) {
-      s.sent_up.clear();
-      for (const auto& entry : s.items) {
-        if (s.from_above.count(entry.first) == 0) unsent_up_.emplace_back(step, entry.first);
-      }
-      if (s.flushed) report = step;
-    }
-    SendOutward(report);
+    SendOutward(Requeue(unsent_up_, &StepState::sent_up, /*skip_from_above=*/true));
   }
   if (new_child) {
     // A new child has none of what this agent sent down before (the DDS history of the
     // relay topic gives it as much again; copies are dropped).
-    unsent_down_.clear();
-    StepIndex report = 0;
-    for (auto& [step, s] : steps_) {
-      s.sent_down.clear();
-      for (const auto& entry : s.items) unsent_down_.emplace_back(step, entry.first);
-      if (s.flushed) report = step;
-    }
-    SendDown(report);
+    SendDown(Requeue(unsent_down_, &StepState::sent_down, /*skip_from_above=*/false));
   }
   // Children changed: steps waiting on a child that left may be ready now.
   for (auto& [step, s] : steps_) {
@@ -171,7 +158,7 @@ bool TreeExchange::Take(const RelayedContribution& item, bool from_above, double
     if (!own) actions_.push_back(tree_action::Deliver{item});
     return false;
   }
-  if (s->delivered.count(msg.agent_id) > 0 || s->items.count(msg.agent_id) > 0) {
+  if (s->items.count(msg.agent_id) > 0) {
     return false;  // a second copy (another path, the DDS history of a new parent)
   }
   s->items.emplace(msg.agent_id, item);
@@ -181,10 +168,7 @@ bool TreeExchange::Take(const RelayedContribution& item, bool from_above, double
     unsent_up_.emplace_back(msg.step, msg.agent_id);
   }
   unsent_down_.emplace_back(msg.step, msg.agent_id);
-  if (!own) {
-    s->delivered.insert(msg.agent_id);
-    actions_.push_back(tree_action::Deliver{item});
-  }
+  if (!own) actions_.push_back(tree_action::Deliver{item});
   return true;
 }
 
@@ -217,16 +201,11 @@ void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
 std::set<AgentId> TreeExchange::Expected(const StepState& s) const {
   std::set<AgentId> expected;
   if (!s.roll_call || s.roll_call->count(options_.self) > 0) expected.insert(options_.self);
-  for (AgentId child : place_.children) {
-    if (!s.roll_call) {
-      expected.insert(child);
-      continue;
-    }
-    for (AgentId id : SubtreeOf(sorted_, child, fanout_)) {
-      if (s.roll_call->count(id) > 0) {
-        expected.insert(child);
-        break;
-      }
+  for (std::size_t c = 0; c < place_.children.size(); ++c) {
+    const std::vector<AgentId>& below = child_subtrees_[c];
+    if (!s.roll_call ||
+        std::any_of(below.begin(), below.end(), [&s](AgentId id) { return s.roll_call->count(id) > 0; })) {
+      expected.insert(place_.children[c]);
     }
   }
   return expected;
@@ -273,6 +252,20 @@ std::vector<RelayedContribution> TreeExchange::Drain(std::vector<std::pair<StepI
   }
   queue.clear();
   return items;
+}
+
+StepIndex TreeExchange::Requeue(std::vector<std::pair<StepIndex, AgentId>>& queue,
+                               std::set<AgentId> StepState::*sent, bool skip_from_above) {
+  StepIndex report = 0;
+  queue.clear();
+  for (auto& [step, s] : steps_) {
+    (s.*sent).clear();
+    for (const auto& entry : s.items) {
+      if (!skip_from_above || s.from_above.count(entry.first) == 0) queue.emplace_back(step, entry.first);
+    }
+    if (s.flushed) report = step;
+  }
+  return report;
 }
 
 void TreeExchange::Send(bool down, StepIndex step, std::vector<RelayedContribution> items) {

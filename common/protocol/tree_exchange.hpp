@@ -105,7 +105,7 @@ class TreeExchange {
     std::optional<std::set<AgentId>> roll_call;
     std::set<AgentId> reported;  // itself (own contribution) and children that sent step k
     std::map<AgentId, RelayedContribution> items;  // by origin id: the first valid one
-    std::set<AgentId> delivered, sent_up, sent_down;
+    std::set<AgentId> sent_up, sent_down;
     std::set<AgentId> from_above;  // came down from the parent
     double first_s = -1.0;  // when this agent first heard of the step
     bool flushed = false;   // its batch of the step is sent (up, or down from the root)
@@ -127,6 +127,10 @@ class TreeExchange {
   // The queued items not yet sent that way, marked sent; the queue emptied.
   std::vector<RelayedContribution> Drain(std::vector<std::pair<StepIndex, AgentId>>& queue,
                                          std::set<AgentId> StepState::*sent);
+  // Queues again every kept item (but those that came from above, with skip_from_above) as
+  // not yet sent that way; returns the newest step whose batch was sent.
+  StepIndex Requeue(std::vector<std::pair<StepIndex, AgentId>>& queue, std::set<AgentId> StepState::*sent,
+                    bool skip_from_above);
   void Trim();
 
   const Config& config_;
@@ -139,6 +143,7 @@ class TreeExchange {
   std::set<AgentId> members_;
   std::vector<AgentId> sorted_;
   TreePlace place_;
+  std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children
   std::map<StepIndex, StepState> steps_;
   StepIndex newest_ = 0;  // the newest step of a roll call or of this agent's own
   std::optional<double> late_since_;  // late items wait to go on since then

@@ -1105,3 +1105,13 @@ TEST_CASE("A relayed contribution of a peer seen lost does not make it a member 
   net.agents.at(1)->OnContribution(ValidContributionFrom(net, 3, 2), KeyOf(3), net.now);
   CHECK(net.agents.at(1)->Members().count(3) == 1);
 }
+
+TEST_CASE("The roll call a relay waits for is the one the protocol accepted", "[protocol][tree]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  const auto accepted = net.agents.at(1)->RollCallOf(3);
+  REQUIRE(accepted.has_value());
+  CHECK(*accepted == std::vector<AgentId>{1, 2, 3});
+  CHECK_FALSE(net.agents.at(1)->RollCallOf(29).has_value());  // no range for it yet
+}
