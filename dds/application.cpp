@@ -152,11 +152,11 @@ void BoundTeardown(int code, std::shared_ptr<spdlog::logger> log) {
   }).detach();
 }
 
-// Execs this program again with the same arguments (but the option `dropped` and its value)
-// and --append (docs/RUNNING.md, "Restarting in place"). Every descriptor but stdin, stdout and stderr is closed on exec:
+// Execs this program again with the same arguments (but the option `dropped` and its value),
+// then `added`, and --append (docs/RUNNING.md, "Restarting in place"). Every descriptor but stdin, stdout and stderr is closed on exec:
 // Fast DDS's lock files among them, so that its peers find the old ports and segments dead.
 // Returns why it could not.
-std::string ExecAgain(int argc, char** argv, const char* dropped) {
+std::string ExecAgain(int argc, char** argv, const char* dropped, const std::vector<std::string>& added) {
   std::vector<std::string> args;
   for (int i = 0; i < argc; ++i) {
     const std::string a = argv[i];
@@ -167,6 +167,7 @@ std::string ExecAgain(int argc, char** argv, const char* dropped) {
     if (dropped != nullptr && a.rfind(std::string(dropped) + "=", 0) == 0) continue;
     args.push_back(a);
   }
+  args.insert(args.end(), added.begin(), added.end());
   if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
   std::vector<char*> exec_argv;
   for (std::string& a : args) exec_argv.push_back(a.data());
@@ -330,6 +331,7 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     const int code = app->Run();
     signals.SetHandler(nullptr);
     const bool restart = app->RestartInPlace();
+    const std::vector<std::string> restart_arguments = restart ? app->RestartArguments() : std::vector<std::string>{};
     if (app->LeaveQuietly() || restart) {
       app.reset();  // its files are closed; its participant is left to the process's end
       log->flush();
@@ -337,7 +339,7 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
       std::fflush(stdout);  // not fflush(nullptr): it would wait for stdin, read by another thread
       std::fflush(stderr);
       if (restart) {
-        const std::string why = ExecAgain(argc, argv, spec.not_repeated_on_restart);  // only on failure
+        const std::string why = ExecAgain(argc, argv, spec.not_repeated_on_restart, restart_arguments);  // only on failure
         std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
       }
       std::_Exit(code);

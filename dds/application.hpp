@@ -36,6 +36,9 @@ class Application {
   // does and execs the same command with --append (the same pid, a new participant), which
   // rejoins the run like a restarted process (docs/RUNNING.md, "Restarting in place").
   virtual bool RestartInPlace() const { return false; }
+  // Arguments added to the command line of that restart (after `not_repeated_on_restart`
+  // is dropped), e.g. the target's step so far ({"--start-step", "216"}).
+  virtual std::vector<std::string> RestartArguments() const { return {}; }
 };
 
 // The options every DDS executable takes.

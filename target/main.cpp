@@ -18,14 +18,15 @@ int main(int argc, char** argv) {
   spec.description = "deif_target: moves the target and publishes truth and noisy ranges over DDS";
   spec.add_options = [&](CLI::App& cli) {
     cli.add_option("--start-step", start_step,
-                   "Resume at step K after a restart (appends to the CSVs); default: the "
-                   "agents' latest step + 1")
+                   "Resume after a restart at step K, or after the agents' latest step if "
+                   "that is later (appends to the CSVs); default: the agents' latest step + 1")
         ->check(CLI::PositiveNumber);
     cli.add_flag("--hold-for-faults", options.hold_for_faults,
                  "At a step with scripted faults print 'hold K' and, in lock-step, wait for "
                  "'go K' on stdin");
   };
-  // Restarted in place, it resumes after the agents' newest step, not at the step first given.
+  // Restarted in place, it resumes after the agents' newest step, and never before the step
+  // it had reached (TargetNode::RestartArguments gives that as the new --start-step).
   spec.not_repeated_on_restart = "--start-step";
   spec.logger_name = [] { return std::string("target"); };
   spec.check = [&](const deif::Config& config) {

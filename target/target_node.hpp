@@ -19,7 +19,7 @@
 namespace deif::target {
 
 struct TargetOptions {
-  std::optional<StepIndex> start_step;  // resume here (a restarted target)
+  std::optional<StepIndex> start_step;  // a restarted target: resume here at the earliest
   bool hold_for_faults = false;
 };
 
@@ -31,6 +31,10 @@ class TargetNode : public dds::Application {
   void Stop() override;
   bool LeaveQuietly() override;
   bool RestartInPlace() const override { return restart_in_place_; }
+  // --start-step with the step after the one it had reached (or the one it was given): the
+  // new process never goes back, even when the agents it finds restarted too and report no
+  // step yet.
+  std::vector<std::string> RestartArguments() const override;
 
  private:
   bool AnotherTargetInThisRun();

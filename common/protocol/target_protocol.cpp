@@ -197,11 +197,13 @@ void TargetProtocol::Advance(double now_s) {
         // the backlog it is reading, and it must start after the newest.
         const bool wait_for_newest = RealTime() && resuming;
         if ((everyone && !wait_for_newest) || settled || (timed_out && !alive.empty())) {
-          first_step_ = options_.start_step ? *options_.start_step : newest + 1;
-          // Real time: the world went on while this target was down, and the agents stepped
-          // on their clock; it resumes at the step after the newest they wrote, not at the
-          // step it was killed before (docs/PROTOCOL.md, "Resuming in real time").
-          if (RealTime()) first_step_ = std::max(first_step_, newest + 1);
+          // The step after the newest the agents wrote, and never before start_step. In real
+          // time the world went on while this target was down, and the agents stepped on
+          // their clock: it resumes after the newest they wrote, not at the step it was
+          // killed before (docs/PROTOCOL.md, "Resuming in real time"). A target restarted in
+          // place is given the step it had reached: the agents it finds may have restarted
+          // too and report no step yet (docs/RUNNING.md, "Restarting in place").
+          first_step_ = std::max(options_.start_step.value_or(1), newest + 1);
           std::string who;
           for (AgentId id : alive) who += " " + std::to_string(id);
           Log(LogLevel::kInfo, std::to_string(alive.size()) + " of " +

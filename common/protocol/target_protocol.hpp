@@ -53,7 +53,7 @@ class TargetProtocol {
  public:
   struct Options {
     RunToken run = 1;
-    std::optional<StepIndex> start_step;  // resume here (a restarted target)
+    std::optional<StepIndex> start_step;  // a restarted target: resume here at the earliest
     bool hold_for_faults = false;         // hold steps with faults until OnGo (lock-step)
   };
 

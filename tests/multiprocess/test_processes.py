@@ -283,6 +283,28 @@ def test_restart_in_place(work, domain, monkeypatch):
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def test_restart_in_place_everyone(work, domain, monkeypatch):
+    """Every process of a lock-step run restarts in place at about the same step (as when a
+    starved host leaves them all deaf at once): the new target must not go back to step 1
+    because the agents it finds have restarted too and report no step yet. It is given the
+    step it had reached (--start-step, a floor), the agents rejoin there, and no CSV has a
+    step twice or goes backwards."""
+    monkeypatch.setenv("DEIF_FAULT_DEAF", "40:1,40:2,40:3,40:4,40:target")
+    res = launch(work, domain, agents=4, steps=100)
+    assert res.ok, res.why_not_ok()
+    with open(os.path.join(res.out_dir, "logs", "target.log")) as f:
+        starts = [int(m) for m in re.findall(r"starting at step (\d+)", f.read())]
+    assert len(starts) == 2 and starts[1] >= 40, starts
+    target_steps = [int(r["step"]) for r in artefacts.read_csv(os.path.join(res.out_dir, "target.csv"))]
+    assert target_steps == sorted(set(target_steps)) and target_steps[-1] == 100, target_steps
+    for j in range(1, 5):
+        steps = steps_of(res.out_dir, j)
+        assert steps == sorted(set(steps)) and steps[-1] == 100, (j, steps)
+        assert steps[:40] == list(range(1, 41)), (j, steps[:45])
+        last = rows(res.out_dir, j)[-1]
+        assert last["fused"] == "4", f"agent {j}: {last}\n{log_excerpt(res.out_dir, j)}"
+
+
 def test_frozen_agent(work, domain):
     """Agent 2 frozen (SIGSTOP) at step 80 and resumed at 125: the others fuse three meanwhile,
     equal to the simulation; once back, agent 2 agrees with them bit for bit and the ring of

@@ -634,6 +634,39 @@ TEST_CASE("A real-time target that resumes a run starts after the newest step th
   CHECK(first_range() == 21);
 }
 
+TEST_CASE("A lock-step target that resumes a run never goes back before its start step, and "
+          "starts after the agents' newest step if that is later",
+          "[protocol]") {
+  const deif::Config config =
+      deif::ParseConfig("scenario: {steps: 300}\nagents: {count: 3}\n", "inline");
+  // A target restarted in place at step 216, say, finds agents that restarted too: their
+  // states are of step 0 (not yet rejoined); or agents that went on to a later step.
+  const StepIndex agents_at = GENERATE(StepIndex{0}, StepIndex{215}, StepIndex{240});
+  protocol::TargetProtocol::Options options;
+  options.run = ScriptedNetwork::kRun;
+  options.start_step = 216;
+  protocol::TargetProtocol target(config, options);
+  target.Start(0.0);
+  for (AgentId id = 1; id <= 3; ++id) {
+    protocol::StateMsg state;
+    state.run = ScriptedNetwork::kRun;
+    state.agent_id = id;
+    state.instance_token = static_cast<std::uint64_t>(id);
+    state.step = agents_at;
+    state.position_m = Vector2(2.0, static_cast<double>(id));
+    state.matched = 3;
+    target.OnState(state, KeyOf(id), 0.0);
+  }
+  target.OnTimer(2.0);
+  StepIndex first = 0;
+  for (auto& action : target.TakeActions()) {
+    if (const auto* r = std::get_if<protocol::target_action::PublishRange>(&action)) {
+      first = first == 0 ? r->msg.step : first;
+    }
+  }
+  CHECK(first == (agents_at == 240 ? 241 : 216));
+}
+
 TEST_CASE("The target holds a faulted step until told to go, and leaves a killed agent out of "
           "its roll call",
           "[protocol]") {
