@@ -113,6 +113,7 @@ TreeExchange::StepState* TreeExchange::StateOf(StepIndex step, double now_s) {
 
 void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s) {
   if (step < 1 || step > config_.scenario.steps) return;
+  heard_roll_call_ = true;
   newest_ = std::max(newest_, step);
   Trim();
   StepState* s = StateOf(step, now_s);
@@ -185,6 +186,13 @@ void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
     actions_.push_back(tree_action::Reject{"oversized_batch"});
     return;
   }
+  if (batch.step >= 1 && batch.step <= config_.scenario.steps && batch.step > newest_) {
+    // The steps relayed follow the batches too, not only this agent's roll calls: an agent
+    // that never hears the target (its range reader unmatched) still relays its subtree,
+    // and beyond the kept steps it would forward nothing (docs/SCALING.md).
+    newest_ = batch.step;
+    Trim();
+  }
   for (const RelayedContribution& item : batch.items) Take(item, batch.down, now_s);
   if (batch.down) {
     // From the parent: passed on at once to the children, with what this agent holds.
@@ -200,7 +208,10 @@ void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
 
 std::set<AgentId> TreeExchange::Expected(const StepState& s) const {
   std::set<AgentId> expected;
-  if (!s.roll_call || s.roll_call->count(options_.self) > 0) expected.insert(options_.self);
+  // Its own contribution if the roll call has it; before the roll call of the step is in,
+  // if it ever heard one: an agent that never hears the target makes no contribution, and
+  // waiting for it held every step of its subtree back by a relay wait.
+  if (s.roll_call ? s.roll_call->count(options_.self) > 0 : heard_roll_call_) expected.insert(options_.self);
   for (std::size_t c = 0; c < place_.children.size(); ++c) {
     const std::vector<AgentId>& below = child_subtrees_[c];
     if (!s.roll_call ||

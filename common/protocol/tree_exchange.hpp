@@ -145,7 +145,8 @@ class TreeExchange {
   TreePlace place_;
   std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children
   std::map<StepIndex, StepState> steps_;
-  StepIndex newest_ = 0;  // the newest step of a roll call or of this agent's own
+  StepIndex newest_ = 0;  // the newest step of a roll call, of this agent's own or of a batch
+  bool heard_roll_call_ = false;  // a roll call of the target has reached this agent
   std::optional<double> late_since_;  // late items wait to go on since then
   // Items (step, origin id) stored and not yet sent up / down, in arrival order.
   std::vector<std::pair<StepIndex, AgentId>> unsent_up_, unsent_down_;

@@ -226,6 +226,59 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   CHECK(delivers == 1);
 }
 
+TEST_CASE("A relay that never hears the target relays its subtree at once, however long the run",
+          "[protocol][tree]") {
+  // GIVEN agent 2 of 7 (fan-out 2: children 4 and 5, parent 1) whose range reader never
+  // matched the target's writer: no roll call and no own contribution ever reach it
+  const deif::Config config = ConfigFor(7, 2, 0.05);
+  REQUIRE(config.scenario.steps >= 150);
+  TreeExchange relay(config, TreeExchange::Options{2, kRun, WriterOf(2)});
+  for (StepIndex k = 1; k <= 150; ++k) {
+    const double now_s = 0.1 * static_cast<double>(k);
+    for (AgentId child : {4, 5}) {
+      BatchMsg up;
+      up.run = kRun;
+      up.sender_id = child;
+      up.step = k;
+      up.items = {protocol::RelayedContribution{WriterOf(child), Contribution(child, k)}};
+      relay.OnBatch(up, now_s);
+    }
+    // THEN the children's step goes up as soon as both are in, without waiting for a
+    // contribution of its own that never comes (at the same instant: no timer ran)
+    std::set<AgentId> sent_up;
+    for (const auto& a : relay.TakeActions()) {
+      if (const auto* send = std::get_if<protocol::tree_action::Send>(&a)) {
+        if (send->batch.down) continue;
+        for (const auto& item : send->batch.items) {
+          if (item.msg.step == k) sent_up.insert(item.msg.agent_id);
+        }
+      }
+    }
+    CHECK(sent_up == std::set<AgentId>{4, 5});
+    // AND the parent's batch of the step goes down to the children, past the kept steps too
+    BatchMsg down;
+    down.run = kRun;
+    down.sender_id = 1;
+    down.step = k;
+    down.down = true;
+    down.items = {protocol::RelayedContribution{WriterOf(1), Contribution(1, k)},
+                  protocol::RelayedContribution{WriterOf(3), Contribution(3, k)}};
+    relay.OnBatch(down, now_s);
+    std::set<AgentId> sent_down;
+    for (const auto& a : relay.TakeActions()) {
+      if (const auto* send = std::get_if<protocol::tree_action::Send>(&a)) {
+        if (!send->batch.down) continue;
+        for (const auto& item : send->batch.items) {
+          if (item.msg.step == k) sent_down.insert(item.msg.agent_id);
+        }
+      }
+    }
+    CHECK(sent_down == std::set<AgentId>{1, 3, 4, 5});
+  }
+  CHECK(relay.kept_items() <= static_cast<std::size_t>(4 * (config.network.history_steps +
+                                                            config.network.fusion_window_steps + 1)));
+}
+
 TEST_CASE("In lock-step a relay gathers late contributions for half a wait", "[protocol][tree]") {
   const deif::Config config = deif::ParseConfig(
       "agents: {count: 7}\nnetwork: {exchange: tree, tree_fanout: 2, step_timeout_s: 2}\n", "inline");
