@@ -18,9 +18,15 @@ using InfoVector = Eigen::Vector2d;  // i_j
 using InfoMatrix = Eigen::Matrix2d;  // I_j
 
 // The filter state is 2-D for the random walk (eq 5.1) and 4-D [p; v] for the
-// constant-velocity model, chosen at run time, so its size really varies.
-using StateVector = Eigen::VectorXd;
-using StateMatrix = Eigen::MatrixXd;
+// constant-velocity model, chosen at run time, so its size really varies; but never
+// beyond 4, so it lives inline, not on the heap. Every contribution carries its sender's
+// (y, Y) and is copied a few times on its way through a relay: with heap-allocated
+// matrices the allocator was a fifth of an agent's CPU at N = 64 (docs/BENCHMARKS.md,
+// "Allocations"). Sizes come only from the motion model and from messages checked to be
+// 2 or 4 (dds/conversions.cpp).
+inline constexpr int kMaxStateDim = 4;
+using StateVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxStateDim, 1>;
+using StateMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxStateDim, kMaxStateDim>;
 
 // pi and 2 pi, written once for the whole project.
 inline constexpr double kPi = 3.141592653589793238462643383279502884;
