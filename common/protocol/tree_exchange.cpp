@@ -98,16 +98,17 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
     SendDown(Requeue(unsent_down_, &StepState::sent_down, /*skip_from_above=*/false));
   }
   // Children changed: steps waiting on a child that left may be ready now.
-  for (auto& [step, s] : steps_) {
-    if (!s.flushed) TryFlush(step, now_s);
-  }
+  FlushDue(now_s);
 }
 
 TreeExchange::StepState* TreeExchange::StateOf(StepIndex step, double now_s) {
   // step >= 1 and 0 <= newest_ <= scenario.steps: the differences cannot overflow.
   if (step < 1 || newest_ - step > keep_ || step - newest_ > keep_) return nullptr;
   StepState& s = steps_[step];
-  if (s.first_s < 0.0) s.first_s = now_s;
+  if (s.first_s < 0.0) {
+    s.first_s = now_s;
+    unflushed_.insert(step);
+  }
   return &s;
 }
 
@@ -230,6 +231,7 @@ void TreeExchange::TryFlush(StepIndex step, double now_s) {
   const bool all = std::includes(s.reported.begin(), s.reported.end(), expected.begin(), expected.end());
   if (!all && now_s < s.first_s + wait_s_) return;
   s.flushed = true;
+  unflushed_.erase(step);
   if (!Root() && s.items.empty() && expected.empty()) return;  // nothing the parent waits for
   SendOutward(step);
 }
@@ -295,10 +297,15 @@ void TreeExchange::Send(bool down, StepIndex step, std::vector<RelayedContributi
   } while (begin < items.size());
 }
 
+void TreeExchange::FlushDue(double now_s) {
+  // The steps not yet flushed (one or two, of the history_steps kept): a copy, as each
+  // flush leaves the set.
+  const std::vector<StepIndex> open(unflushed_.begin(), unflushed_.end());
+  for (StepIndex step : open) TryFlush(step, now_s);
+}
+
 void TreeExchange::OnTimer(double now_s) {
-  for (auto& [step, s] : steps_) {
-    if (!s.flushed) TryFlush(step, now_s);
-  }
+  FlushDue(now_s);
   // What arrived for steps whose batch is gone goes on soon: in lock-step gathered for
   // half a wait (one late sample, not one per late child), in real time at once.
   bool late = false;
@@ -323,9 +330,10 @@ void TreeExchange::OnTimer(double now_s) {
 std::optional<double> TreeExchange::NextDeadline() const {
   std::optional<double> next;
   if (late_since_) next = *late_since_ + late_gather_s_;
-  for (const auto& [step, s] : steps_) {
-    if (s.flushed || s.first_s < 0.0) continue;
-    const double due = s.first_s + wait_s_;
+  for (StepIndex step : unflushed_) {
+    const auto s = steps_.find(step);
+    if (s == steps_.end() || s->second.first_s < 0.0) continue;
+    const double due = s->second.first_s + wait_s_;
     if (!next || due < *next) next = due;
   }
   return next;
@@ -344,7 +352,10 @@ std::size_t TreeExchange::kept_items() const {
 }
 
 void TreeExchange::Trim() {
-  while (!steps_.empty() && steps_.begin()->first < newest_ - keep_) steps_.erase(steps_.begin());
+  while (!steps_.empty() && steps_.begin()->first < newest_ - keep_) {
+    unflushed_.erase(steps_.begin()->first);
+    steps_.erase(steps_.begin());
+  }
   // Queued items of steps no longer kept: a root never sends up, a leaf cut off from its
   // parent never sends down, and neither queue may grow with the run.
   const StepIndex oldest = newest_ - keep_;

@@ -119,6 +119,7 @@ class TreeExchange {
   bool Take(const RelayedContribution& item, bool from_above, double now_s);
   std::set<AgentId> Expected(const StepState& s) const;
   void TryFlush(StepIndex step, double now_s);
+  void FlushDue(double now_s);  // TryFlush of every step not yet flushed
   // Sends what is waiting to go outward (up, or down from the root) with `step`.
   void SendOutward(StepIndex step);
   // Sends down the items of every kept step not yet sent down, with `step`.
@@ -145,6 +146,7 @@ class TreeExchange {
   TreePlace place_;
   std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children
   std::map<StepIndex, StepState> steps_;
+  std::set<StepIndex> unflushed_;  // the kept steps whose batch is not sent yet
   StepIndex newest_ = 0;  // the newest step of a roll call, of this agent's own or of a batch
   bool heard_roll_call_ = false;  // a roll call of the target has reached this agent
   std::optional<double> late_since_;  // late items wait to go on since then
