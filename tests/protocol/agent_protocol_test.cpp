@@ -598,6 +598,23 @@ TEST_CASE("In real time an agent whose ranges come after their deadline follows 
   }
 }
 
+namespace {
+
+// The state agent `id` publishes at `step`, present and hearing all `agents` (for a target
+// that resumes a run).
+protocol::StateMsg StateOfAgent(AgentId id, StepIndex step, int agents) {
+  protocol::StateMsg state;
+  state.run = ScriptedNetwork::kRun;
+  state.agent_id = id;
+  state.instance_token = static_cast<std::uint64_t>(id);
+  state.step = step;
+  state.position_m = Vector2(2.0, static_cast<double>(id));
+  state.matched = agents;
+  return state;
+}
+
+}  // namespace
+
 TEST_CASE("A real-time target that resumes a run starts after the newest step the agents wrote, "
           "even when their states arrive as one backlog",
           "[protocol]") {
@@ -611,16 +628,7 @@ TEST_CASE("A real-time target that resumes a run starts after the newest step th
   // GIVEN every agent's states of steps 5..20 arrive at once, oldest first (a new reader's
   // backlog), each agent present and hearing the others
   for (StepIndex k = 5; k <= 20; ++k) {
-    for (AgentId id = 1; id <= 3; ++id) {
-      protocol::StateMsg state;
-      state.run = ScriptedNetwork::kRun;
-      state.agent_id = id;
-      state.instance_token = static_cast<std::uint64_t>(id);
-      state.step = k;
-      state.position_m = Vector2(2.0, static_cast<double>(id));
-      state.matched = 3;
-      target.OnState(state, KeyOf(id), 0.0);
-    }
+    for (AgentId id = 1; id <= 3; ++id) target.OnState(StateOfAgent(id, k, 3), KeyOf(id), 0.0);
   }
   const auto first_range = [&target]() -> StepIndex {
     for (auto& action : target.TakeActions()) {
@@ -647,16 +655,7 @@ TEST_CASE("A lock-step target that resumes a run never goes back before its star
   options.start_step = 216;
   protocol::TargetProtocol target(config, options);
   target.Start(0.0);
-  for (AgentId id = 1; id <= 3; ++id) {
-    protocol::StateMsg state;
-    state.run = ScriptedNetwork::kRun;
-    state.agent_id = id;
-    state.instance_token = static_cast<std::uint64_t>(id);
-    state.step = agents_at;
-    state.position_m = Vector2(2.0, static_cast<double>(id));
-    state.matched = 3;
-    target.OnState(state, KeyOf(id), 0.0);
-  }
+  for (AgentId id = 1; id <= 3; ++id) target.OnState(StateOfAgent(id, agents_at, 3), KeyOf(id), 0.0);
   target.OnTimer(2.0);
   StepIndex first = 0;
   for (auto& action : target.TakeActions()) {
