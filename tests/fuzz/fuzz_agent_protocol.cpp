@@ -402,7 +402,9 @@ ContributionMsg FuzzContribution(FuzzInput& in, Network& net) {
     }
   }
   if (mask & 1024u) {
-    const int n = in.Byte() % 6;  // a basis of another dimension
+    // A basis of another dimension: 0 to 4, what the state types (and the wire, 2 or 4)
+    // can hold at all (common/core/types.hpp).
+    const int n = in.Byte() % (deif::kMaxStateDim + 1);
     msg.basis.y = deif::StateVector::Zero(n);
     msg.basis.Y = deif::StateMatrix::Identity(n, n);
   }

@@ -48,10 +48,12 @@ std::vector<AgentId> RollCall(FuzzInput& in) {
 }
 
 deif::InfoState Basis(FuzzInput& in, int dim) {
-  // Mostly the model's dimension; sometimes another (a peer with another model).
+  // Mostly the model's dimension; sometimes another (a peer with another model), 0 to 4:
+  // what the state types (and the wire, 2 or 4) can hold at all (common/core/types.hpp).
   const std::uint8_t shape = in.Byte();
-  const int ny = shape < 200 ? dim : shape % 6;
-  const int nY = shape < 200 ? dim : (shape / 6) % 6;
+  constexpr int kDims = deif::kMaxStateDim + 1;
+  const int ny = shape < 200 ? dim : shape % kDims;
+  const int nY = shape < 200 ? dim : (shape / kDims) % kDims;
   deif::InfoState s;
   s.y = deif::StateVector::Zero(ny);
   s.Y = deif::StateMatrix::Identity(nY, nY);
