@@ -152,22 +152,28 @@ void BoundTeardown(int code, std::shared_ptr<spdlog::logger> log) {
   }).detach();
 }
 
-// Execs this program again with the same arguments (but the option `dropped` and its value),
-// then `added`, and --append (docs/RUNNING.md, "Restarting in place"). Every descriptor but stdin, stdout and stderr is closed on exec:
+// Execs this program again with the same arguments, each option of `replaced` with its new
+// value instead of the old one, and --append (docs/RUNNING.md, "Restarting in place").
+// Every descriptor but stdin, stdout and stderr is closed on exec:
 // Fast DDS's lock files among them, so that its peers find the old ports and segments dead.
 // Returns why it could not.
-std::string ExecAgain(int argc, char** argv, const char* dropped, const std::vector<std::string>& added) {
+std::string ExecAgain(int argc, char** argv, const RestartOptions& replaced) {
   std::vector<std::string> args;
   for (int i = 0; i < argc; ++i) {
     const std::string a = argv[i];
-    if (dropped != nullptr && a == dropped) {
+    const auto is = [&a](const auto& option) { return a == option.first; };
+    const auto is_with_value = [&a](const auto& option) { return a.rfind(option.first + "=", 0) == 0; };
+    if (std::any_of(replaced.begin(), replaced.end(), is)) {
       ++i;  // and its value
       continue;
     }
-    if (dropped != nullptr && a.rfind(std::string(dropped) + "=", 0) == 0) continue;
+    if (std::any_of(replaced.begin(), replaced.end(), is_with_value)) continue;
     args.push_back(a);
   }
-  args.insert(args.end(), added.begin(), added.end());
+  for (const auto& [option, value] : replaced) {
+    args.push_back(option);
+    args.push_back(value);
+  }
   if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
   std::vector<char*> exec_argv;
   for (std::string& a : args) exec_argv.push_back(a.data());
@@ -331,7 +337,7 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     const int code = app->Run();
     signals.SetHandler(nullptr);
     const bool restart = app->RestartInPlace();
-    const std::vector<std::string> restart_arguments = restart ? app->RestartArguments() : std::vector<std::string>{};
+    const RestartOptions restart_options = restart ? app->RestartOptionsOf() : RestartOptions{};
     if (app->LeaveQuietly() || restart) {
       app.reset();  // its files are closed; its participant is left to the process's end
       log->flush();
@@ -339,7 +345,7 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
       std::fflush(stdout);  // not fflush(nullptr): it would wait for stdin, read by another thread
       std::fflush(stderr);
       if (restart) {
-        const std::string why = ExecAgain(argc, argv, spec.not_repeated_on_restart, restart_arguments);  // only on failure
+        const std::string why = ExecAgain(argc, argv, restart_options);  // only on failure
         std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
       }
       std::_Exit(code);

@@ -9,6 +9,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -18,6 +19,9 @@
 #include "common/protocol/agent_protocol.hpp"
 
 namespace deif::dds {
+
+// Options and values a process restarted in place is given instead of its first ones.
+using RestartOptions = std::vector<std::pair<std::string, std::string>>;
 
 // An executable's application object: RAII over its DDS entities.
 class Application {
@@ -36,9 +40,9 @@ class Application {
   // does and execs the same command with --append (the same pid, a new participant), which
   // rejoins the run like a restarted process (docs/RUNNING.md, "Restarting in place").
   virtual bool RestartInPlace() const { return false; }
-  // Arguments added to the command line of that restart (after `not_repeated_on_restart`
-  // is dropped), e.g. the target's step so far ({"--start-step", "216"}).
-  virtual std::vector<std::string> RestartArguments() const { return {}; }
+  // Options whose value that restart changes (each replaces the option given before, if
+  // any), e.g. the target's step so far: {{"--start-step", "216"}}.
+  virtual RestartOptions RestartOptionsOf() const { return {}; }
 };
 
 // The options every DDS executable takes.
@@ -72,9 +76,6 @@ struct ProcessSpec {
   std::function<std::string()> identity_name;
   // Checks the executable's own options against the config; throws ConfigError.
   std::function<void(const Config&)> check;
-  // An option (with its value) not passed again when the process restarts in place
-  // (Application::RestartInPlace), or nullptr.
-  const char* not_repeated_on_restart = nullptr;
   // Makes the application (after every check passed).
   std::function<std::unique_ptr<Application>(ProcessContext&)> make;
 };

@@ -26,8 +26,7 @@ int main(int argc, char** argv) {
                  "'go K' on stdin");
   };
   // Restarted in place, it resumes after the agents' newest step, and never before the step
-  // it had reached (TargetNode::RestartArguments gives that as the new --start-step).
-  spec.not_repeated_on_restart = "--start-step";
+  // it had reached (TargetNode::RestartOptionsOf gives that as the new --start-step).
   spec.logger_name = [] { return std::string("target"); };
   spec.check = [&](const deif::Config& config) {
     if (start_step > config.scenario.steps) {

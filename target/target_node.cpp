@@ -167,15 +167,16 @@ int TargetNode::Run() {
   return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);
 }
 
-std::vector<std::string> TargetNode::RestartArguments() const {
+dds::RestartOptions TargetNode::RestartOptionsOf() const {
   // The step after the one it was at: that step's ranges and truth row are written (the
-  // step in flight may be lost, as with any restart, but no row is written twice). While
-  // it waits for the agents (step 0), the step it was given.
+  // step in flight may be lost, as with any restart). While it waits for the agents (step
+  // 0), the step it was given. At the last step, that step again: if the agents wrote it,
+  // the new process finds nothing left to do, else it writes the last truth row twice.
   const StepIndex current = protocol_.current_step();
   StepIndex floor = std::max(options_.start_step.value_or(0), current > 0 ? current + 1 : 0);
   floor = std::min(floor, config_.scenario.steps);  // --start-step goes up to the last step
   if (floor < 1) return {};
-  return {"--start-step", std::to_string(floor)};
+  return {{"--start-step", std::to_string(floor)}};
 }
 
 void TargetNode::WriteCounters() const {

@@ -34,7 +34,7 @@ class TargetNode : public dds::Application {
   // --start-step with the step after the one it had reached (or the one it was given): the
   // new process never goes back, even when the agents it finds restarted too and report no
   // step yet.
-  std::vector<std::string> RestartArguments() const override;
+  dds::RestartOptions RestartOptionsOf() const override;
 
  private:
   bool AnotherTargetInThisRun();

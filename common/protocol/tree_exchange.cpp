@@ -225,12 +225,11 @@ std::set<AgentId> TreeExchange::Expected(const StepState& s) const {
 
 void TreeExchange::TryFlush(StepIndex step, double now_s) {
   auto it = steps_.find(step);
-  if (it == steps_.end() || it->second.flushed) return;
+  if (it == steps_.end() || Flushed(step)) return;
   StepState& s = it->second;
   const std::set<AgentId> expected = Expected(s);
   const bool all = std::includes(s.reported.begin(), s.reported.end(), expected.begin(), expected.end());
   if (!all && now_s < s.first_s + wait_s_) return;
-  s.flushed = true;
   unflushed_.erase(step);
   if (!Root() && s.items.empty() && expected.empty()) return;  // nothing the parent waits for
   SendOutward(step);
@@ -276,7 +275,7 @@ StepIndex TreeExchange::Requeue(std::vector<std::pair<StepIndex, AgentId>>& queu
     for (const auto& entry : s.items) {
       if (!skip_from_above || s.from_above.count(entry.first) == 0) queue.emplace_back(step, entry.first);
     }
-    if (s.flushed) report = step;
+    if (Flushed(step)) report = step;
   }
   return report;
 }
@@ -311,7 +310,7 @@ void TreeExchange::OnTimer(double now_s) {
   bool late = false;
   for (const auto& entry : Root() ? unsent_down_ : unsent_up_) {
     auto s = steps_.find(entry.first);
-    if (s != steps_.end() && s->second.flushed) {
+    if (s != steps_.end() && Flushed(entry.first)) {
       late = true;
       break;
     }
@@ -330,10 +329,8 @@ void TreeExchange::OnTimer(double now_s) {
 std::optional<double> TreeExchange::NextDeadline() const {
   std::optional<double> next;
   if (late_since_) next = *late_since_ + late_gather_s_;
-  for (StepIndex step : unflushed_) {
-    const auto s = steps_.find(step);
-    if (s == steps_.end() || s->second.first_s < 0.0) continue;
-    const double due = s->second.first_s + wait_s_;
+  for (StepIndex step : unflushed_) {  // each kept, with first_s set (StateOf)
+    const double due = steps_.at(step).first_s + wait_s_;
     if (!next || due < *next) next = due;
   }
   return next;

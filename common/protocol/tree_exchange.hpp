@@ -108,7 +108,6 @@ class TreeExchange {
     std::set<AgentId> sent_up, sent_down;
     std::set<AgentId> from_above;  // came down from the parent
     double first_s = -1.0;  // when this agent first heard of the step
-    bool flushed = false;   // its batch of the step is sent (up, or down from the root)
   };
 
   bool Root() const { return !place_.parent.has_value(); }
@@ -120,6 +119,8 @@ class TreeExchange {
   std::set<AgentId> Expected(const StepState& s) const;
   void TryFlush(StepIndex step, double now_s);
   void FlushDue(double now_s);  // TryFlush of every step not yet flushed
+  // Its batch of the step is sent (up, or down from the root).
+  bool Flushed(StepIndex step) const { return unflushed_.count(step) == 0; }
   // Sends what is waiting to go outward (up, or down from the root) with `step`.
   void SendOutward(StepIndex step);
   // Sends down the items of every kept step not yet sent down, with `step`.
@@ -146,7 +147,7 @@ class TreeExchange {
   TreePlace place_;
   std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children
   std::map<StepIndex, StepState> steps_;
-  std::set<StepIndex> unflushed_;  // the kept steps whose batch is not sent yet
+  std::set<StepIndex> unflushed_;  // the kept steps whose batch is not sent yet (the others are)
   StepIndex newest_ = 0;  // the newest step of a roll call, of this agent's own or of a batch
   bool heard_roll_call_ = false;  // a roll call of the target has reached this agent
   std::optional<double> late_since_;  // late items wait to go on since then
