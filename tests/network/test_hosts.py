@@ -18,6 +18,14 @@ def rows(run, j):
     return artefacts.read_csv(os.path.join(run, f"agent_{j}.csv"))
 
 
+def oracle_of(run):
+    """The in-process simulation (all to all, no network) of the run's effective config."""
+    out = run + "-oracle"
+    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(run, "config.yaml"),
+                    "--out", out, "--quiet"], check=True)
+    return out
+
+
 def every_step_written(run, agents, steps):
     return all([int(r["step"]) for r in rows(run, j)] == list(range(1, steps + 1)) for j in agents)
 
@@ -31,9 +39,7 @@ def test_lockstep_10_percent_loss(work, domain):
                        loss=0.10, progress=False)
     assert res.ok, res.why_not_ok()
     assert every_step_written(res.out_dir, range(1, 5), 200)
-    oracle = res.out_dir + "-oracle"
-    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(res.out_dir, "config.yaml"),
-                    "--out", oracle, "--quiet"], check=True)
+    oracle = oracle_of(res.out_dir)
     for j in range(1, 5):
         ref = {r["step"]: r for r in rows(oracle, j)}
         for r in rows(res.out_dir, j):
@@ -99,3 +105,62 @@ def test_partition_and_heal(work, domain):
     assert agreeing >= 0.8 * len(after), f"{agreeing} of {len(after)} steps agree after the heal"
     for j in range(1, 5):
         assert all(r["alive"] == "4" for r in rows(res.out_dir, j)[healed + 20:])
+
+
+# The tree exchange across hosts (network.exchange: tree, docs/SCALING.md). Fan-out 2 over
+# nine agents makes four levels; agents alternate between hosts 2 and 3, so every edge of
+# the tree crosses the bridge, and a lost batch is a whole subtree's contributions.
+TREE = ["network.exchange=tree", "network.tree_fanout=2"]
+
+
+def test_tree_lockstep_10_percent_loss(work, domain):
+    """Lock-step over the tree, three hosts, 10 % loss per host: every agent writes every
+    step with all nine fused and equals the in-process simulation (all to all) bit for bit."""
+    res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=120, hosts=3,
+                       loss=0.10, overrides=TREE, progress=False)
+    assert res.ok, res.why_not_ok()
+    assert every_step_written(res.out_dir, range(1, 10), 120)
+    oracle = oracle_of(res.out_dir)
+    for j in range(1, 10):
+        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+            assert "exchange: tree, fan-out 2" in f.read()
+        ref = {r["step"]: r for r in rows(oracle, j)}
+        for r in rows(res.out_dir, j):
+            assert (r["x_est"], r["y_est"], r["p_xx"]) == \
+                (ref[r["step"]]["x_est"], ref[r["step"]]["y_est"], ref[r["step"]]["p_xx"]), (j, r["step"])
+            assert r["complete"] == "1" and r["fused"] == "9", (j, r["step"])
+
+
+def test_tree_partition_and_heal(work, domain):
+    """Real time over the tree: host 3 (the even agents, half of every level's relays) is cut
+    off for 3 s. Every agent writes every step; each side's tree holds its own members
+    only; after the heal one tree holds all nine again and the settled steps agree exactly
+    (as in test_partition_and_heal)."""
+    res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=250, hosts=3,
+                       overrides=TREE + REALTIME, partitions=[launcher.Partition(80, 3.0, 3)],
+                       progress=False)
+    assert res.ok, res.why_not_ok()
+    agents = range(1, 10)
+    assert every_step_written(res.out_dir, agents, 250)
+    p = res.summary["partitions"][0]
+    healed = p["healed_at_step"]
+    assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
+    by_agent = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in agents}
+    cut_off = [j for j in agents if j % 2 == 0]
+    for j in agents:  # during the cut: the side's own members (target side 5, cut-off side 4)
+        during = {int(by_agent[j][k]["alive"]) for k in range(p["cut_at_step"] + 10, healed - 5)}
+        assert during == {len(cut_off) if j in cut_off else 9 - len(cut_off)}, (j, during)
+    after = range(healed + 20, 251)
+
+    def complete(k):
+        return all(by_agent[j][k]["complete"] == "1" for j in agents)
+
+    def agree(k):
+        return len({(by_agent[j][k]["x_est"], by_agent[j][k]["y_est"]) for j in agents}) == 1
+
+    settled = [k for k in after if complete(k - 2) and complete(k - 1) and complete(k)]
+    assert len(settled) >= 0.5 * len(after), f"only {len(settled)} of {len(after)} steps settled"
+    assert all(agree(k) for k in settled), \
+        f"settled steps that disagree after the heal: {[k for k in settled if not agree(k)]}"
+    for j in agents:
+        assert all(by_agent[j][k]["alive"] == "9" for k in after), j
