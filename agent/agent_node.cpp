@@ -4,11 +4,13 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <string>
 #include <type_traits>
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <spdlog/fmt/fmt.h>
 
 namespace deif::agent {
 
@@ -51,7 +53,9 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       id_(id),
       instance_token_(dds::RandomInstanceToken()),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
-      protocol_(context.config, id, ProtocolOptions(context, id, instance_token_)) {
+      protocol_(context.config, id, ProtocolOptions(context, id, instance_token_)),
+      discovery_patience_s_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
+      discovery_watch_(discovery_patience_s_) {
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
@@ -166,6 +170,10 @@ int AgentNode::Run() {
     protocol_.OnTimer(now_s);
     Pump();
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
+    if (DiscoveryStoppedShort(now_s)) {
+      WriteCounters();
+      return protocol::kExitRuntimeError;  // the exit code if it cannot start again
+    }
   }
   protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
   if (stop_requested_) {
@@ -196,9 +204,42 @@ int AgentNode::Deaf() {
   // dead writer's segment"); a new participant can. The rows written so far are kept: the
   // new process appends to them and rejoins as a restarted agent does (docs/PROTOCOL.md).
   WriteCounters();
-  restart_in_place_ = dds::MayRestartInPlace(
-      *context_.log, "after step " + std::to_string(protocol_.last_written_step()));
+  restart_in_place_ = dds::MayRestartInPlace(*context_.log, dds::kReceiveStuck,
+                                             "after step " + std::to_string(protocol_.last_written_step()));
   return protocol::kExitRuntimeError;  // the exit code when it does not start again
+}
+
+bool AgentNode::DiscoveryStoppedShort(double now_s) {
+  // Every agent of the run whose participant is up should have a contribution writer this
+  // agent's reader matched, and the target's participant up a range writer; with a Discovery
+  // Server the target should be up at all (docs/FASTDDS_NOTES.md, "Endpoint discovery that
+  // stops short"). Not with security: there a participant is created anew when its handshake
+  // stalls, and names are checked by permissions.
+  if (node_.Secure() || now_s < next_discovery_check_s_) return false;
+  next_discovery_check_s_ = now_s + 0.5;
+  int peers = 1;  // its own writer
+  for (AgentId j : node_.AgentsUp()) {
+    peers += j != id_ && j >= 1 && j <= static_cast<AgentId>(config_.agents.count) ? 1 : 0;
+  }
+  const bool target = node_.TargetUp();
+  const bool server = config_.network.discovery == DiscoveryKind::kServer;
+  // Both ways: its reader matched every peer's writer, its writer every peer's reader (only
+  // the side that misses an endpoint can tell).
+  const int expected = 2 * peers + (target || server ? 1 : 0);
+  const int matched = std::min(node_.MatchedWriters(dds::Topic::kContribution), peers) +
+                      std::min(node_.MatchedReaders(dds::Topic::kContribution), peers) +
+                      (target ? std::min(node_.MatchedWriters(dds::Topic::kRange), 1) : 0);
+  if (!discovery_watch_.Stalled(expected, matched, now_s)) return false;
+  const std::string why = fmt::format(
+      "endpoint discovery stopped short: {} peers and {} up, {} of {} contribution and range endpoints matched, unchanged "
+      "for {:g} s (docs/FASTDDS_NOTES.md, \"Endpoint discovery that stops short\")",
+      peers - 1, target ? "the target" : "no target", matched, expected, discovery_patience_s_);
+  if (dds::MayRestartInPlace(*context_.log, why, "after step " + std::to_string(protocol_.last_written_step()))) {
+    restart_in_place_ = true;
+    return true;
+  }
+  next_discovery_check_s_ = std::numeric_limits<double>::infinity();  // said once; it goes on as it is
+  return false;
 }
 
 void AgentNode::ReportMatches(double now_s) {

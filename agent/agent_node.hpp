@@ -14,6 +14,7 @@
 
 #include "common/artefacts/artefacts.hpp"
 #include "common/protocol/agent_protocol.hpp"
+#include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/tree_exchange.hpp"
 #include "dds/application.hpp"
 #include "dds/node.hpp"
@@ -52,6 +53,10 @@ class AgentNode : public dds::Application {
   // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
+  // Whether this agent's endpoint discovery stopped short of the participants it sees
+  // (protocol::DiscoveryWatch) and it is to start again in place with a new participant. If
+  // it already did so dds::kMaxRestartsInPlace times, it says so once and goes on.
+  bool DiscoveryStoppedShort(double now_s);
   // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   void ReportMatches(double now_s);
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason.
@@ -72,6 +77,9 @@ class AgentNode : public dds::Application {
   std::optional<int> exit_code_;
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
+  const double discovery_patience_s_;
+  protocol::DiscoveryWatch discovery_watch_;
+  double next_discovery_check_s_ = 0.0;
 };
 
 }  // namespace deif::agent

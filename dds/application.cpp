@@ -254,15 +254,13 @@ StepIndex FaultDeafStep(const std::string& who) {
   return 0;
 }
 
-bool MayRestartInPlace(spdlog::logger& log, const std::string& when) {
+bool MayRestartInPlace(spdlog::logger& log, const std::string& why, const std::string& when) {
   const int restarts = RestartsInPlace();
   if (restarts >= kMaxRestartsInPlace) {
-    log.error("this process hears nothing more: a shared-memory receive thread of Fast DDS is stuck on "
-              "a message of a dead peer, after {} restart(s) in place; giving up {}", restarts, when);
+    log.error("{}, after {} restart(s) in place; giving up {}", why, restarts, when);
     return false;
   }
-  log.error("this process hears nothing more: a shared-memory receive thread of Fast DDS is stuck on a "
-            "message of a dead peer (docs/FASTDDS_NOTES.md); {} it starts again in place", when);
+  log.error("{}; {} it starts again in place", why, when);
   return true;
 }
 

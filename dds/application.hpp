@@ -94,10 +94,14 @@ int RestartsInPlace();
 // the first process of `who` acts as if its receive were stuck, so that tests can run the
 // restart in place on demand (docs/RUNNING.md, "Restarting in place"); 0 when not asked.
 StepIndex FaultDeafStep(const std::string& who);
-// For a process whose receive is stuck (Node::ReceiveStuck): logs why, and whether it may
-// start again in place (true) or already did kMaxRestartsInPlace times (false: it ends
-// with code 1). `when` says where its run stands, e.g. "after step 50".
-bool MayRestartInPlace(spdlog::logger& log, const std::string& when);
+// For a process that must start again with a new participant (`why`): logs why, and whether
+// it may start again in place (true) or already did kMaxRestartsInPlace times (false). `when`
+// says where its run stands, e.g. "after step 50".
+bool MayRestartInPlace(spdlog::logger& log, const std::string& why, const std::string& when);
+// Why a process whose shared-memory receive is stuck (Node::ReceiveStuck) starts again.
+constexpr const char* kReceiveStuck =
+    "this process hears nothing more: a shared-memory receive thread of Fast DDS is stuck on a message of "
+    "a dead peer (docs/FASTDDS_NOTES.md)";
 
 // A protocol's log line, at its level, through the process logger.
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);

@@ -134,6 +134,11 @@ Timings EffectiveTimings(const Config& config) {
   return t;
 }
 
+double DiscoveryPatienceS(const Config& config, int restarts_in_place) {
+  const double base = std::max(5.0, 4.0 * EffectiveTimings(config).participant_announcement_s);
+  return base * static_cast<double>(1 << std::clamp(restarts_in_place, 0, 8));
+}
+
 namespace {
 
 template <typename Qos>

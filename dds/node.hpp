@@ -166,6 +166,13 @@ struct Timings {
   double participant_lease_s = 0.0;
 };
 Timings EffectiveTimings(const Config& config);
+// How long a process's endpoint discovery may stay short of the participants it sees, unchanged,
+// before it starts again in place with a new participant (protocol::DiscoveryWatch;
+// docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"): matching under way at N = 64
+// on 2 cores goes on for seconds between changes, so a few participant announcements more than
+// that, at least 5 s; twice as long after each restart in place, so that a peer started late
+// (the target of a run whose agents were started first) costs no more than a few.
+double DiscoveryPatienceS(const Config& config, int restarts_in_place);
 
 // A steady_clock time point as seconds (the protocol's clock).
 inline double ToSeconds(Clock::time_point t) {

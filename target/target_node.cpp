@@ -36,7 +36,8 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
       config_(context.config),
       options_(options),
       node_(context.config, "target", context.run_name),
-      protocol_(context.config, ProtocolOptions(context, options)) {
+      protocol_(context.config, ProtocolOptions(context, options)),
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
   node_.AddWriter(dds::Topic::kTruth);
   node_.AddReader({dds::Topic::kAgentState, {}});
   // A reader of ranges for id 0, which nobody writes: before this target has a range writer
@@ -145,13 +146,17 @@ int TargetNode::Run() {
     if (!protocol_.started()) protocol_.OnRangeReaders(node_.MatchedReaderKeys(dds::Topic::kRange));
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
+    if (!protocol_.started() && DiscoveryStoppedShort(now_s)) {
+      WriteCounters();
+      return protocol::kExitRuntimeError;  // the exit code if it cannot start again
+    }
     if (dds::Node::ReceiveStuck() || DeafForTest()) {
       // Fast DDS 2.9.1 cannot recover the port (docs/FASTDDS_NOTES.md, "A receive loop stuck
       // on a dead writer's segment"); a new participant can. The new process resumes after
       // the agents' newest step, as a restarted target does (docs/PROTOCOL.md).
       WriteCounters();
-      restart_in_place_ = dds::MayRestartInPlace(
-          *context_.log, "at step " + std::to_string(protocol_.current_step()));
+      restart_in_place_ = dds::MayRestartInPlace(*context_.log, dds::kReceiveStuck,
+                                                 "at step " + std::to_string(protocol_.current_step()));
       return protocol::kExitRuntimeError;  // the exit code when it does not start again
     }
   }
@@ -188,6 +193,26 @@ void TargetNode::WriteCounters() const {
                                    {"by_reason", protocol_.rejected_by_reason()}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) / "target.counters.json").string())
       << counters.dump(2) << "\n";
+}
+
+bool TargetNode::DiscoveryStoppedShort(double now_s) {
+  if (node_.Secure() || discovery_given_up_) return false;
+  const auto alive = static_cast<int>(protocol_.AliveAgents().size());
+  const std::set<AgentId> unreached = protocol_.Unreached();
+  if (!discovery_watch_.Stalled(alive, alive - static_cast<int>(unreached.size()), now_s)) return false;
+  std::string who;
+  for (AgentId id : unreached) who += " " + std::to_string(id);
+  const std::string why =
+      "endpoint discovery stopped short: the readers of ranges of agents" + who +
+      " (present: their states arrive) are unknown to this target's writer, unchanged for " +
+      std::to_string(static_cast<int>(dds::DiscoveryPatienceS(config_, dds::RestartsInPlace()))) +
+      " s (docs/FASTDDS_NOTES.md, \"Endpoint discovery that stops short\")";
+  if (dds::MayRestartInPlace(*context_.log, why, "before step 1")) {
+    restart_in_place_ = true;
+    return true;
+  }
+  discovery_given_up_ = true;
+  return false;
 }
 
 bool TargetNode::DeafForTest() const {

@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "common/artefacts/artefacts.hpp"
+#include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/target_protocol.hpp"
 #include "dds/application.hpp"
 #include "dds/node.hpp"
@@ -40,6 +41,11 @@ class TargetNode : public dds::Application {
   bool AnotherTargetInThisRun();
   void WriteCounters() const;
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
+  // While it waits for the agents: whether its range writer has stopped short of agents that
+  // are present (their states arrive, no reader of theirs matched, unchanged for
+  // dds::DiscoveryPatienceS), so that it starts again in place with a new participant
+  // (docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"). Not with security.
+  bool DiscoveryStoppedShort(double now_s);
   void Execute(std::vector<protocol::TargetAction> actions);
   void ReadControl();  // the stdin thread: "go <step>" lines
   void Dispatch(const dds::Event& event, double now_s);
@@ -58,6 +64,8 @@ class TargetNode : public dds::Application {
   std::deque<StepIndex> go_steps_;  // guarded by control_mutex_
   std::thread control_thread_;
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
+  protocol::DiscoveryWatch discovery_watch_;
+  bool discovery_given_up_ = false;  // restarted in place too often: it waits on as it is
 };
 
 }  // namespace deif::target

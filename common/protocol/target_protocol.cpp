@@ -117,6 +117,14 @@ void TargetProtocol::OnTimer(double now_s) {
   Advance(now_s);
 }
 
+std::set<AgentId> TargetProtocol::Unreached() const {
+  std::set<AgentId> unreached;
+  for (AgentId id : AliveAgents()) {
+    if (!RangesReach(agents_.at(id))) unreached.insert(id);
+  }
+  return unreached;
+}
+
 std::set<AgentId> TargetProtocol::AliveAgents() const {
   std::set<AgentId> alive;
   for (const auto& [id, agent] : agents_) {

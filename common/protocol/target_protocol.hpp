@@ -85,6 +85,9 @@ class TargetProtocol {
   long lapses_forgiven() const { return lapses_.ignored(); }
   StepIndex current_step() const { return step_; }
   std::set<AgentId> AliveAgents() const;  // alive with a known state
+  // The alive agents its ranges do not reach yet (OnRangeReaders): while it waits for them,
+  // what it waits for on its own side of discovery. Empty when the readers were never reported.
+  std::set<AgentId> Unreached() const;
   const std::map<std::string, std::int64_t>& rejected_by_reason() const { return rejected_; }
 
  private:

@@ -750,7 +750,7 @@ class Launcher:
 
 
 def restarts_in_place(log_path):
-    """How often a process started again in place after its receive got stuck (its log says
+    """How often a process started again in place with a new participant (its log says
     so; docs/RUNNING.md, "Restarting in place")."""
     try:
         with open(log_path, "rb") as f:

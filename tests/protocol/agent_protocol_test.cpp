@@ -832,10 +832,12 @@ TEST_CASE("The target starts only when its range writer reaches every agent pres
   net.Pump();
   net.AdvanceTime(0.5);
   net.Pump();
-  // THEN every agent's state is in, but no step is published
+  // THEN every agent's state is in, but no step is published: agent 3 is the one unreached
   CHECK_FALSE(net.target->started());
+  CHECK(net.target->Unreached() == std::set<AgentId>{3});
   // WHEN agent 3's reader matches too
   net.target->OnRangeReaders({reader_of(1), reader_of(2), reader_of(3)});
+  CHECK(net.target->Unreached().empty());
   net.AdvanceTime(0.01);
   net.Pump();
   // THEN the run starts

@@ -1,0 +1,14 @@
+#include "common/protocol/discovery_watch.hpp"
+
+namespace deif::protocol {
+
+bool DiscoveryWatch::Stalled(int expected, int matched, double now_s) {
+  if (expected != expected_ || matched != matched_) {
+    expected_ = expected;
+    matched_ = matched;
+    since_s_ = now_s;
+  }
+  return matched < expected && now_s - since_s_ >= patience_s_;
+}
+
+}  // namespace deif::protocol

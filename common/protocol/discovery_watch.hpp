@@ -1,0 +1,29 @@
+// Endpoint discovery that stops short (docs/FASTDDS_NOTES.md, "Endpoint discovery that stops
+// short"): a process sees its peers' participants but never matches some of their endpoints.
+// Fast DDS 2.9.1 as a Discovery Server client does this now and then when many clients start
+// at once, and does not repair it: the peers' writers stay unknown to this process for the
+// whole run. Matching still under way changes as it goes; matching that stopped short stays
+// the same. Only a new participant learns the endpoints again.
+#pragma once
+
+namespace deif::protocol {
+
+class DiscoveryWatch {
+ public:
+  // patience_s: how long matching may stay short of what is up, unchanged, before it counts
+  // as stopped.
+  explicit DiscoveryWatch(double patience_s) : patience_s_(patience_s) {}
+
+  // What the transport reports at now_s: `expected` endpoints of the participants that are
+  // up, `matched` of them matched. True once matched < expected and neither number has
+  // changed for patience_s.
+  bool Stalled(int expected, int matched, double now_s);
+
+ private:
+  double patience_s_;
+  int expected_ = -1;
+  int matched_ = -1;
+  double since_s_ = 0.0;  // when the numbers last changed
+};
+
+}  // namespace deif::protocol
