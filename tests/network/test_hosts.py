@@ -26,6 +26,23 @@ def oracle_of(run):
     return out
 
 
+def settled_steps_agree(by_agent, after):
+    """Asserts that at least half the steps of `after` are settled (every agent's rows of the
+    step and of the two before are complete) and that every settled step agrees exactly;
+    returns the test of agreement of a step. by_agent: agent -> step -> row."""
+    def complete(k):
+        return all(by_agent[j][k]["complete"] == "1" for j in by_agent)
+
+    def agree(k):
+        return len({(by_agent[j][k]["x_est"], by_agent[j][k]["y_est"]) for j in by_agent}) == 1
+
+    settled = [k for k in after if complete(k - 2) and complete(k - 1) and complete(k)]
+    assert len(settled) >= 0.5 * len(after), f"only {len(settled)} of {len(after)} steps settled"
+    assert all(agree(k) for k in settled), \
+        f"settled steps that disagree after the heal: {[k for k in settled if not agree(k)]}"
+    return agree
+
+
 def every_step_written(run, agents, steps):
     return all([int(r["step"]) for r in rows(run, j)] == list(range(1, steps + 1)) for j in agents)
 
@@ -91,16 +108,7 @@ def test_partition_and_heal(work, domain):
     by_agent = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in range(1, 5)}
     after = range(healed + 20, 251)
 
-    def complete(k):
-        return all(by_agent[j][k]["complete"] == "1" for j in by_agent)
-
-    def agree(k):
-        return len({(by_agent[j][k]["x_est"], by_agent[j][k]["y_est"]) for j in by_agent}) == 1
-
-    settled = [k for k in after if complete(k - 2) and complete(k - 1) and complete(k)]
-    assert len(settled) >= 0.5 * len(after), f"only {len(settled)} of {len(after)} steps settled"
-    assert all(agree(k) for k in settled), \
-        f"settled steps that disagree after the heal: {[k for k in settled if not agree(k)]}"
+    agree = settled_steps_agree(by_agent, after)
     agreeing = sum(agree(k) for k in after)
     assert agreeing >= 0.8 * len(after), f"{agreeing} of {len(after)} steps agree after the heal"
     for j in range(1, 5):
@@ -151,16 +159,6 @@ def test_tree_partition_and_heal(work, domain):
         during = {int(by_agent[j][k]["alive"]) for k in range(p["cut_at_step"] + 10, healed - 5)}
         assert during == {len(cut_off) if j in cut_off else 9 - len(cut_off)}, (j, during)
     after = range(healed + 20, 251)
-
-    def complete(k):
-        return all(by_agent[j][k]["complete"] == "1" for j in agents)
-
-    def agree(k):
-        return len({(by_agent[j][k]["x_est"], by_agent[j][k]["y_est"]) for j in agents}) == 1
-
-    settled = [k for k in after if complete(k - 2) and complete(k - 1) and complete(k)]
-    assert len(settled) >= 0.5 * len(after), f"only {len(settled)} of {len(after)} steps settled"
-    assert all(agree(k) for k in settled), \
-        f"settled steps that disagree after the heal: {[k for k in settled if not agree(k)]}"
+    settled_steps_agree(by_agent, after)
     for j in agents:
         assert all(by_agent[j][k]["alive"] == "9" for k in after), j
