@@ -4,7 +4,6 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <limits>
 #include <string>
 #include <type_traits>
 #include <vector>
@@ -54,8 +53,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       instance_token_(dds::RandomInstanceToken()),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
       protocol_(context.config, id, ProtocolOptions(context, id, instance_token_)),
-      discovery_patience_s_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
-      discovery_watch_(discovery_patience_s_) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
@@ -215,8 +213,7 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
   // Server the target should be up at all (docs/FASTDDS_NOTES.md, "Endpoint discovery that
   // stops short"). Not with security: there a participant is created anew when its handshake
   // stalls, and names are checked by permissions.
-  if (node_.Secure() || now_s < next_discovery_check_s_) return false;
-  next_discovery_check_s_ = now_s + 0.5;
+  if (node_.Secure() || !discovery_watch_.Due(now_s)) return false;
   int peers = 1;  // its own writer
   for (AgentId j : node_.AgentsUp()) {
     peers += j != id_ && j >= 1 && j <= static_cast<AgentId>(config_.agents.count) ? 1 : 0;
@@ -233,12 +230,12 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
   const std::string why = fmt::format(
       "endpoint discovery stopped short: {} peers and {} up, {} of {} contribution and range endpoints matched, unchanged "
       "for {:g} s (docs/FASTDDS_NOTES.md, \"Endpoint discovery that stops short\")",
-      peers - 1, target ? "the target" : "no target", matched, expected, discovery_patience_s_);
+      peers - 1, target ? "the target" : "no target", matched, expected, discovery_watch_.patience_s());
   if (dds::MayRestartInPlace(*context_.log, why, "after step " + std::to_string(protocol_.last_written_step()))) {
     restart_in_place_ = true;
     return true;
   }
-  next_discovery_check_s_ = std::numeric_limits<double>::infinity();  // said once; it goes on as it is
+  discovery_watch_.GiveUp();  // said once; it goes on as it is
   return false;
 }
 

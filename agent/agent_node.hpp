@@ -77,9 +77,7 @@ class AgentNode : public dds::Application {
   std::optional<int> exit_code_;
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
-  const double discovery_patience_s_;
   protocol::DiscoveryWatch discovery_watch_;
-  double next_discovery_check_s_ = 0.0;
 };
 
 }  // namespace deif::agent

@@ -196,7 +196,7 @@ void TargetNode::WriteCounters() const {
 }
 
 bool TargetNode::DiscoveryStoppedShort(double now_s) {
-  if (node_.Secure() || discovery_given_up_) return false;
+  if (node_.Secure() || !discovery_watch_.Due(now_s)) return false;
   const auto alive = static_cast<int>(protocol_.AliveAgents().size());
   const std::set<AgentId> unreached = protocol_.Unreached();
   if (!discovery_watch_.Stalled(alive, alive - static_cast<int>(unreached.size()), now_s)) return false;
@@ -205,13 +205,13 @@ bool TargetNode::DiscoveryStoppedShort(double now_s) {
   const std::string why =
       "endpoint discovery stopped short: the readers of ranges of agents" + who +
       " (present: their states arrive) are unknown to this target's writer, unchanged for " +
-      std::to_string(static_cast<int>(dds::DiscoveryPatienceS(config_, dds::RestartsInPlace()))) +
+      std::to_string(static_cast<int>(discovery_watch_.patience_s())) +
       " s (docs/FASTDDS_NOTES.md, \"Endpoint discovery that stops short\")";
   if (dds::MayRestartInPlace(*context_.log, why, "before step 1")) {
     restart_in_place_ = true;
     return true;
   }
-  discovery_given_up_ = true;
+  discovery_watch_.GiveUp();
   return false;
 }
 

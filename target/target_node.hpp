@@ -65,7 +65,6 @@ class TargetNode : public dds::Application {
   std::thread control_thread_;
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
-  bool discovery_given_up_ = false;  // restarted in place too often: it waits on as it is
 };
 
 }  // namespace deif::target

@@ -2,6 +2,12 @@
 
 namespace deif::protocol {
 
+bool DiscoveryWatch::Due(double now_s) {
+  if (given_up_ || now_s < next_check_s_) return false;
+  next_check_s_ = now_s + kCheckPeriodS;
+  return true;
+}
+
 bool DiscoveryWatch::Stalled(int expected, int matched, double now_s) {
   if (expected != expected_ || matched != matched_) {
     expected_ = expected;

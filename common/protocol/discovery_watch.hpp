@@ -14,6 +14,13 @@ class DiscoveryWatch {
   // as stopped.
   explicit DiscoveryWatch(double patience_s) : patience_s_(patience_s) {}
 
+  // Whether to look at the transport now: at most every kCheckPeriodS (counting the matches
+  // costs), and never again once it GaveUp.
+  bool Due(double now_s);
+  // A process that may not start again any more goes on as it is: no more checks.
+  void GiveUp() { given_up_ = true; }
+  double patience_s() const { return patience_s_; }
+
   // What the transport reports at now_s: `expected` endpoints of the participants that are
   // up, `matched` of them matched. True once matched < expected and neither number has
   // changed for patience_s.
@@ -24,6 +31,9 @@ class DiscoveryWatch {
   int expected_ = -1;
   int matched_ = -1;
   double since_s_ = 0.0;  // when the numbers last changed
+  double next_check_s_ = 0.0;
+  bool given_up_ = false;
+  static constexpr double kCheckPeriodS = 0.5;
 };
 
 }  // namespace deif::protocol

@@ -26,6 +26,15 @@ TEST_CASE("Matching that goes on, or participants that come and go, start the pa
   CHECK_FALSE(watch.Stalled(17, 9, 14.5));  // a late match after all
 }
 
+TEST_CASE("The transport is looked at every half second, and never after giving up", "[discovery]") {
+  DiscoveryWatch watch(5.0);
+  CHECK(watch.Due(0.0));
+  CHECK_FALSE(watch.Due(0.3));
+  CHECK(watch.Due(0.5));
+  watch.GiveUp();
+  CHECK_FALSE(watch.Due(100.0));
+}
+
 TEST_CASE("Matching complete, or beyond what is up, is never stopped short", "[discovery]") {
   DiscoveryWatch watch(1.0);
   for (double t = 0.0; t < 10.0; t += 0.5) {
