@@ -381,9 +381,10 @@ std::set<AgentId> AgentNode::TreeMembers() const {
 }
 
 bool AgentNode::LeaveQuietly() {
-  // The end of a run, or a failure: every process of the run may leave at about the same
-  // time (dds::Node::Abandon). Only a stopped process says goodbye.
-  if (stop_requested_) return false;
+  // The end of the run, or giving up on it: every process of the run may leave at about the
+  // same time (dds::Node::Abandon). A stopped process, or one that never took part (another
+  // process has its place), leaves while the run goes on, and says goodbye.
+  if (stop_requested_ || !protocol_.finished()) return false;
   node_.Abandon();
   return true;
 }

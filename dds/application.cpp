@@ -16,6 +16,7 @@
 #include <fstream>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -132,52 +133,63 @@ Config LoadProcessConfig(const ProcessOptions& options) {
   return LoadConfig(options.config_path, overrides);
 }
 
+// How a process ends once its participant is to be deleted, if the deletion hangs or
+// crashes: with the code Run() returned, or by starting again in place with these
+// arguments. Plain data: a signal handler reads it.
+struct Ending {
+  int code = 0;
+  char* const* exec_argv = nullptr;  // not null: start again in place
+};
+Ending g_ending;
+
+// Async-signal-safe: the crash guard calls it from a signal handler.
+[[noreturn]] void EndNow() {
+  if (g_ending.exec_argv != nullptr) {
+    sigset_t none;
+    sigemptyset(&none);
+    sigprocmask(SIG_SETMASK, &none, nullptr);  // the new image must not inherit a blocked SIGABRT
+    ::execv("/proc/self/exe", g_ending.exec_argv);
+  }
+  std::_Exit(g_ending.code);
+}
+
+extern "C" void OnTeardownCrash(int /*signal_number*/) {
+  static const char kText[] =
+      "Fast DDS crashed while deleting the participant; ending without it (docs/FASTDDS_NOTES.md, "
+      "\"Leaving while the run goes on\")\n";
+  [[maybe_unused]] const ssize_t written = ::write(STDERR_FILENO, kText, sizeof kText - 1);
+  EndNow();
+}
+
 // Deleting a participant can hang for good in Fast DDS 2.9.1 when a secure peer leaves at the
-// same moment (docs/FASTDDS_NOTES.md, "Security"). By then the process has written its rows,
-// counters and log, so the deletion gets kTeardownBoundS; after that the process exits
-// without it, with the code it would have returned, and its peers see it leave when its
-// lease runs out.
+// same moment (docs/FASTDDS_NOTES.md, "Security"), and can abort in PDP.cpp:1140 when peers
+// leave at the same moment (docs/FASTDDS_NOTES.md, "Leaving at the end of a run"). By then the
+// process has written its rows, counters and log, so the deletion gets kTeardownBoundS and a
+// crash inside it ends the process as planned: with the code it would have returned (or
+// starting again in place), and its peers see it leave when its lease runs out.
 constexpr double kTeardownBoundS = 10.0;
 
-void BoundTeardown(int code, std::shared_ptr<spdlog::logger> log) {
-  std::thread([code, log] {
+void GuardTeardown(std::shared_ptr<spdlog::logger> log) {
+  struct sigaction action {};
+  action.sa_handler = OnTeardownCrash;
+  sigemptyset(&action.sa_mask);
+  action.sa_flags = SA_RESETHAND;  // a second crash inside the handler ends the process
+  for (int signal_number : {SIGABRT, SIGSEGV, SIGBUS}) sigaction(signal_number, &action, nullptr);
+  std::thread([log] {
     std::this_thread::sleep_for(std::chrono::duration<double>(kTeardownBoundS));
     log->warn("the DDS participant was not deleted within {} s (a known Fast DDS 2.9.1 deadlock, "
-              "docs/FASTDDS_NOTES.md); exiting without it",
-              kTeardownBoundS);
+              "docs/FASTDDS_NOTES.md); {} without it",
+              kTeardownBoundS, g_ending.exec_argv != nullptr ? "starting again" : "exiting");
     log->flush();
     std::fflush(stdout);
     std::fflush(stderr);
-    std::_Exit(code);
+    EndNow();
   }).detach();
 }
 
-// Execs this program again with the same arguments, each option of `replaced` with its new
-// value instead of the old one, and --append (docs/RUNNING.md, "Restarting in place").
-// Every descriptor but stdin, stdout and stderr is closed on exec:
-// Fast DDS's lock files among them, so that its peers find the old ports and segments dead.
-// Returns why it could not.
-std::string ExecAgain(int argc, char** argv, const RestartOptions& replaced) {
-  std::vector<std::string> args;
-  for (int i = 0; i < argc; ++i) {
-    const std::string a = argv[i];
-    const auto is = [&a](const auto& option) { return a == option.first; };
-    const auto is_with_value = [&a](const auto& option) { return a.rfind(option.first + "=", 0) == 0; };
-    if (std::any_of(replaced.begin(), replaced.end(), is)) {
-      ++i;  // and its value
-      continue;
-    }
-    if (std::any_of(replaced.begin(), replaced.end(), is_with_value)) continue;
-    args.push_back(a);
-  }
-  for (const auto& [option, value] : replaced) {
-    args.push_back(option);
-    args.push_back(value);
-  }
-  if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
-  std::vector<char*> exec_argv;
-  for (std::string& a : args) exec_argv.push_back(a.data());
-  exec_argv.push_back(nullptr);
+// Marks every descriptor but stdin, stdout and stderr close-on-exec: Fast DDS's lock files
+// among them, so that its peers find the old ports and segments dead.
+void CloseOnExec() {
   std::error_code ec;
   std::vector<int> fds;
   for (const auto& entry : std::filesystem::directory_iterator("/proc/self/fd", ec)) {
@@ -187,10 +199,51 @@ std::string ExecAgain(int argc, char** argv, const RestartOptions& replaced) {
   for (int fd : fds) {
     if (fd > 2) ::fcntl(fd, F_SETFD, FD_CLOEXEC);
   }
-  ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
-  ::execv("/proc/self/exe", exec_argv.data());
-  return std::string("cannot start again in place: ") + std::strerror(errno);
 }
+
+// This program's command again, each option of `replaced` with its new value instead of the
+// old one, and --append (docs/RUNNING.md, "Restarting in place"); made before the
+// participant is deleted, so that a hang or crash in the deletion can still exec it.
+class RestartCommand {
+ public:
+  RestartCommand(int argc, char** argv, const RestartOptions& replaced) {
+    for (int i = 0; i < argc; ++i) {
+      const std::string a = argv[i];
+      const auto is = [&a](const auto& option) { return a == option.first; };
+      const auto is_with_value = [&a](const auto& option) { return a.rfind(option.first + "=", 0) == 0; };
+      if (std::any_of(replaced.begin(), replaced.end(), is)) {
+        ++i;  // and its value
+        continue;
+      }
+      if (std::any_of(replaced.begin(), replaced.end(), is_with_value)) continue;
+      args_.push_back(a);
+    }
+    for (const auto& [option, value] : replaced) {
+      args_.push_back(option);
+      args_.push_back(value);
+    }
+    if (std::find(args_.begin(), args_.end(), "--append") == args_.end()) args_.emplace_back("--append");
+    for (std::string& a : args_) argv_.push_back(a.data());
+    argv_.push_back(nullptr);
+    ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
+    CloseOnExec();
+  }
+  RestartCommand(const RestartCommand&) = delete;
+  RestartCommand& operator=(const RestartCommand&) = delete;
+
+  char* const* argv() const { return argv_.data(); }
+
+  // Returns why it could not.
+  std::string Exec() const {
+    CloseOnExec();  // and what was opened since
+    ::execv("/proc/self/exe", argv_.data());
+    return std::string("cannot start again in place: ") + std::strerror(errno);
+  }
+
+ private:
+  std::vector<std::string> args_;
+  std::vector<char*> argv_;
+};
 
 }  // namespace
 
@@ -334,22 +387,33 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
     });
     const int code = app->Run();
     signals.SetHandler(nullptr);
-    const bool restart = app->RestartInPlace();
-    const RestartOptions restart_options = restart ? app->RestartOptionsOf() : RestartOptions{};
-    if (app->LeaveQuietly() || restart) {
-      app.reset();  // its files are closed; its participant is left to the process's end
+    const auto flush = [&log] {
       log->flush();
-      spdlog::shutdown();
       std::fflush(stdout);  // not fflush(nullptr): it would wait for stdin, read by another thread
       std::fflush(stderr);
-      if (restart) {
-        const std::string why = ExecAgain(argc, argv, restart_options);  // only on failure
-        std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
-      }
+    };
+    if (!app->RestartInPlace() && app->LeaveQuietly()) {
+      // The run is over for everyone: no goodbye (docs/FASTDDS_NOTES.md, "Leaving at the end
+      // of a run").
+      app.reset();  // its files are closed; its participant is left to the process's end
+      flush();
+      spdlog::shutdown();
       std::_Exit(code);
     }
-    BoundTeardown(code, log);
+    // The run goes on without this process (stopped, refused, or starting again in place):
+    // it deletes its participant, so that no thread of Fast DDS dies holding the lock of a
+    // peer's shared-memory port (docs/FASTDDS_NOTES.md, "Leaving while the run goes on").
+    std::optional<RestartCommand> restart;
+    if (app->RestartInPlace()) restart.emplace(argc, argv, app->RestartOptionsOf());
+    g_ending = Ending{code, restart ? restart->argv() : nullptr};
+    GuardTeardown(log);
     app.reset();  // deletes the participant: its peers hear at once that it left
+    if (restart) {
+      flush();
+      spdlog::shutdown();
+      const std::string why = restart->Exec();  // only on failure
+      std::fprintf(stderr, "%s: error: %s\n", spec.program, why.c_str());
+    }
     return code;
   } catch (const ConfigError& e) {
     return fail(protocol::kExitBadConfig, e.what());

@@ -31,14 +31,18 @@ class Application {
   virtual int Run() = 0;
   // Thread-safe: makes Run() return soon.
   virtual void Stop() = 0;
-  // After Run(): true when the run is over or failed (not stopped) and the node has been
-  // abandoned (Node::Abandon): the process then ends at once with Run()'s code, without
-  // deleting its participant (docs/FASTDDS_NOTES.md, "Leaving at the end of a run").
+  // After Run(), unless it starts again in place: true when the run is over for this
+  // process's part (it ended with the run, or gave up on it; not stopped, not refused) and the
+  // node has been abandoned (Node::Abandon): the process then ends at once with Run()'s code,
+  // without deleting its participant (docs/FASTDDS_NOTES.md, "Leaving at the end of a run").
+  // Otherwise RunMain deletes the participant (docs/FASTDDS_NOTES.md, "Leaving while the run
+  // goes on").
   virtual bool LeaveQuietly() { return false; }
   // After Run(): true when the process must start again in place because it can no longer
-  // hear the network (Node::ReceiveStuck): RunMain then leaves the domain as LeaveQuietly
-  // does and execs the same command with --append (the same pid, a new participant), which
-  // rejoins the run like a restarted process (docs/RUNNING.md, "Restarting in place").
+  // hear the network (Node::ReceiveStuck) or its discovery stopped short: RunMain then
+  // deletes its participant and execs the same command with --append (the same pid, a new
+  // participant), which rejoins the run like a restarted process (docs/RUNNING.md,
+  // "Restarting in place").
   virtual bool RestartInPlace() const { return false; }
   // Options whose value that restart changes (each replaces the option given before, if
   // any), e.g. the target's step so far: {{"--start-step", "216"}}.
