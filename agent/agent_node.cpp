@@ -226,7 +226,7 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
   const int matched = std::min(node_.MatchedWriters(dds::Topic::kContribution), peers) +
                       std::min(node_.MatchedReaders(dds::Topic::kContribution), peers) +
                       (target ? std::min(node_.MatchedWriters(dds::Topic::kRange), 1) : 0);
-  if (!discovery_watch_.Stalled(expected, matched, now_s)) return false;
+  if (!discovery_watch_.Stalled(expected, matched, node_.EndpointsHeard(), now_s)) return false;
   const std::string why = fmt::format(
       "endpoint discovery stopped short: {} peers and {} up, {} of {} contribution and range endpoints matched, unchanged "
       "for {:g} s (docs/FASTDDS_NOTES.md, \"Endpoint discovery that stops short\")",

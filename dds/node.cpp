@@ -395,11 +395,18 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
                               eprosima::fastrtps::rtps::WriterDiscoveryInfo&& info) override {
     using Info = eprosima::fastrtps::rtps::WriterDiscoveryInfo;
     if (info.status == Info::REMOVED_WRITER) return;  // kept: the same writer may come back
+    if (info.status == Info::DISCOVERED_WRITER) endpoints_heard_.fetch_add(1);
     const std::vector<std::string> names = info.info.m_qos.m_partition.getNames();
     const protocol::SenderKey key = ToKey(fdds::InstanceHandle_t(info.info.guid()));
     std::lock_guard<std::mutex> lock(mutex_);
     const auto [it, first] = bindings_.try_emplace(key, Binding{names, false});
     if (!first && it->second.partitions != names) it->second.revoked = true;
+  }
+
+  void on_subscriber_discovery(fdds::DomainParticipant*,
+                               eprosima::fastrtps::rtps::ReaderDiscoveryInfo&& info) override {
+    using Info = eprosima::fastrtps::rtps::ReaderDiscoveryInfo;
+    if (info.status == Info::DISCOVERED_READER) endpoints_heard_.fetch_add(1);
   }
 
   void on_participant_discovery(fdds::DomainParticipant*,
@@ -470,6 +477,7 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
   bool WatchedUp() const { return watched_up_.load() > 0; }
   // Changes with every participant discovered or gone (without a lock).
   std::uint64_t Version() const { return version_.load(); }
+  std::uint64_t EndpointsHeard() const { return endpoints_heard_.load(); }
   // The ids of the participants named agent-<id> that announced the watched run and are up.
   std::set<AgentId> AgentsUp() const {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -517,6 +525,7 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
   std::string watched_name_, watched_run_;  // set before the participant exists
   std::atomic<int> watched_up_{0};
   std::atomic<std::uint64_t> version_{0};
+  std::atomic<std::uint64_t> endpoints_heard_{0};  // remote writers and readers discovered
   mutable std::mutex mutex_;
   std::map<protocol::SenderKey, Binding> bindings_;
   std::map<Guid, Peer> peers_;
@@ -1167,6 +1176,8 @@ bool Node::TargetUp() const { return impl_->participant_listener.WatchedUp(); }
 std::set<AgentId> Node::AgentsUp() const { return impl_->participant_listener.AgentsUp(); }
 
 std::uint64_t Node::ParticipantsVersion() const { return impl_->participant_listener.Version(); }
+
+std::uint64_t Node::EndpointsHeard() const { return impl_->participant_listener.EndpointsHeard(); }
 
 bool Node::ReceiveStuck() { return g_receive_stuck.load(); }
 

@@ -128,6 +128,9 @@ class Node {
   std::set<AgentId> AgentsUp() const;
   // Changes whenever a participant is discovered or gone (AgentsUp may have changed).
   std::uint64_t ParticipantsVersion() const;
+  // How many remote writers and readers this participant has discovered so far, in any
+  // partition and topic: it grows while discovery is under way anywhere.
+  std::uint64_t EndpointsHeard() const;
   // True once a shared-memory receive thread of this process is stuck for good on a message
   // of a dead writer whose segment is gone (Fast DDS 2.9.1; docs/FASTDDS_NOTES.md, "A
   // receive loop stuck on a dead writer's segment"): the process hears nothing more on that

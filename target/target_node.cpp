@@ -199,7 +199,10 @@ bool TargetNode::DiscoveryStoppedShort(double now_s) {
   if (node_.Secure() || !discovery_watch_.Due(now_s)) return false;
   const auto alive = static_cast<int>(protocol_.AliveAgents().size());
   const std::set<AgentId> unreached = protocol_.Unreached();
-  if (!discovery_watch_.Stalled(alive, alive - static_cast<int>(unreached.size()), now_s)) return false;
+  if (!discovery_watch_.Stalled(alive, alive - static_cast<int>(unreached.size()),
+                                node_.EndpointsHeard(), now_s)) {
+    return false;
+  }
   std::string who;
   for (AgentId id : unreached) who += " " + std::to_string(id);
   const std::string why =

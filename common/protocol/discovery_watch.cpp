@@ -8,10 +8,11 @@ bool DiscoveryWatch::Due(double now_s) {
   return true;
 }
 
-bool DiscoveryWatch::Stalled(int expected, int matched, double now_s) {
-  if (expected != expected_ || matched != matched_) {
+bool DiscoveryWatch::Stalled(int expected, int matched, std::uint64_t heard, double now_s) {
+  if (expected != expected_ || matched != matched_ || heard != heard_) {
     expected_ = expected;
     matched_ = matched;
+    heard_ = heard;
     since_s_ = now_s;
   }
   return matched < expected && now_s - since_s_ >= patience_s_;

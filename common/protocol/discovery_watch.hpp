@@ -6,6 +6,8 @@
 // the same. Only a new participant learns the endpoints again.
 #pragma once
 
+#include <cstdint>
+
 namespace deif::protocol {
 
 class DiscoveryWatch {
@@ -22,14 +24,17 @@ class DiscoveryWatch {
   double patience_s() const { return patience_s_; }
 
   // What the transport reports at now_s: `expected` endpoints of the participants that are
-  // up, `matched` of them matched. True once matched < expected and neither number has
-  // changed for patience_s.
-  bool Stalled(int expected, int matched, double now_s);
+  // up, `matched` of them matched, and `heard`, how many endpoints it has discovered so far
+  // anywhere (it grows while a peer is still creating its endpoints: a target making one
+  // writer of ranges per agent under a storm of discovery took 105 s for 128). True once
+  // matched < expected and none of the three has changed for patience_s.
+  bool Stalled(int expected, int matched, std::uint64_t heard, double now_s);
 
  private:
   double patience_s_;
   int expected_ = -1;
   int matched_ = -1;
+  std::uint64_t heard_ = 0;
   double since_s_ = 0.0;  // when the numbers last changed
   double next_check_s_ = 0.0;
   bool given_up_ = false;

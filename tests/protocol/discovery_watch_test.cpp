@@ -8,22 +8,35 @@ using deif::protocol::DiscoveryWatch;
 TEST_CASE("Matching short of what is up counts as stopped only after the patience, unchanged",
           "[discovery]") {
   DiscoveryWatch watch(5.0);
-  CHECK_FALSE(watch.Stalled(16, 9, 0.0));
-  CHECK_FALSE(watch.Stalled(16, 9, 4.9));
-  CHECK(watch.Stalled(16, 9, 5.0));
-  CHECK(watch.Stalled(16, 9, 30.0));
+  CHECK_FALSE(watch.Stalled(16, 9, 0, 0.0));
+  CHECK_FALSE(watch.Stalled(16, 9, 0, 4.9));
+  CHECK(watch.Stalled(16, 9, 0, 5.0));
+  CHECK(watch.Stalled(16, 9, 0, 30.0));
 }
 
 TEST_CASE("Matching that goes on, or participants that come and go, start the patience again",
           "[discovery]") {
   DiscoveryWatch watch(5.0);
-  CHECK_FALSE(watch.Stalled(16, 3, 0.0));
-  CHECK_FALSE(watch.Stalled(16, 8, 4.0));   // more matched: under way
-  CHECK_FALSE(watch.Stalled(16, 8, 8.9));
-  CHECK_FALSE(watch.Stalled(17, 8, 9.0));   // one more participant up
-  CHECK_FALSE(watch.Stalled(17, 8, 13.9));
-  CHECK(watch.Stalled(17, 8, 14.0));
-  CHECK_FALSE(watch.Stalled(17, 9, 14.5));  // a late match after all
+  CHECK_FALSE(watch.Stalled(16, 3, 0, 0.0));
+  CHECK_FALSE(watch.Stalled(16, 8, 0, 4.0));   // more matched: under way
+  CHECK_FALSE(watch.Stalled(16, 8, 0, 8.9));
+  CHECK_FALSE(watch.Stalled(17, 8, 0, 9.0));   // one more participant up
+  CHECK_FALSE(watch.Stalled(17, 8, 0, 13.9));
+  CHECK(watch.Stalled(17, 8, 0, 14.0));
+  CHECK_FALSE(watch.Stalled(17, 9, 0, 14.5));  // a late match after all
+}
+
+TEST_CASE("Endpoints still being heard of anywhere start the patience again", "[discovery]") {
+  // A target that makes one writer of ranges per agent, slowly under a storm of discovery:
+  // this agent's writer is not there yet, but the others keep appearing.
+  DiscoveryWatch watch(5.0);
+  std::uint64_t heard = 300;
+  for (double t = 0.0; t < 60.0; t += 0.5) {
+    CHECK_FALSE(watch.Stalled(257, 256, ++heard, t));
+  }
+  // Then nothing more is heard of: a hole after all.
+  CHECK_FALSE(watch.Stalled(257, 256, heard, 64.4));  // the last one heard of at 59.5
+  CHECK(watch.Stalled(257, 256, heard, 64.5));
 }
 
 TEST_CASE("The transport is looked at every half second, and never after giving up", "[discovery]") {
@@ -38,11 +51,11 @@ TEST_CASE("The transport is looked at every half second, and never after giving 
 TEST_CASE("Matching complete, or beyond what is up, is never stopped short", "[discovery]") {
   DiscoveryWatch watch(1.0);
   for (double t = 0.0; t < 10.0; t += 0.5) {
-    CHECK_FALSE(watch.Stalled(16, 16, t));
+    CHECK_FALSE(watch.Stalled(16, 16, 0, t));
   }
   // A peer restarted in place: its old writer still matched beside the new one.
   for (double t = 10.0; t < 20.0; t += 0.5) {
-    CHECK_FALSE(watch.Stalled(16, 17, t));
+    CHECK_FALSE(watch.Stalled(16, 17, 0, t));
   }
-  CHECK_FALSE(watch.Stalled(0, 0, 30.0));
+  CHECK_FALSE(watch.Stalled(0, 0, 0, 30.0));
 }
