@@ -108,6 +108,8 @@ class TargetProtocol {
   bool RangesReach(const Agent& agent) const;
   bool StepDone(double now_s) const;
   double StepWait() const;
+  // When the wait for the agents last made progress (the start, or a new agent seen).
+  double WaitingSince() const;
   bool FaultsApplied(double now_s) const;
   void BeginStep(StepIndex k, double now_s);
   void PublishStep(StepIndex k);

@@ -722,6 +722,48 @@ TEST_CASE("A fault the network never shows holds the target for half the start t
   }
 }
 
+TEST_CASE("The target's start timeout counts from the last agent that appeared, so a slow "
+          "discovery still under way is waited for", "[protocol]") {
+  // GIVEN 4 agents whose participants are all up, start_timeout_s 5, and the states of
+  // agents 3 and 4 not yet through to the target (their discovery is still under way)
+  ScriptedNetwork net(
+      "scenario: {steps: 6}\n"
+      "agents: {count: 4}\n"
+      "network: {start_timeout_s: 5}\n");
+  for (AgentId id = 1; id <= 4; ++id) net.agents.at(id)->OnTargetParticipant(true, net.now);
+  const auto late = [](const Envelope& e) { return e.to == deif::testing::kTarget && (e.from == 3 || e.from == 4); };
+  net.Start();
+  net.Pump(late);
+  const auto wait_until = [&net, &late](double t_s) {
+    while (net.now < t_s - 1e-9) {
+      net.AdvanceTime(0.05);
+      net.Pump(late);
+    }
+  };
+  // WHEN agent 3's state gets through at 4 s
+  wait_until(4.0);
+  REQUIRE_FALSE(net.target->started());
+  std::deque<Envelope> held;
+  held.swap(net.held);
+  for (Envelope& e : held) {
+    if (e.from == 3) {
+      net.Deliver(e);
+    } else {
+      net.held.push_back(std::move(e));
+    }
+  }
+  // THEN the target has not started at 5 s from its start, nor 4.9 s after agent 3 came
+  wait_until(8.9);
+  CHECK_FALSE(net.target->started());
+  // but 5 s after agent 3 it starts with the three it has, and they run to the end
+  wait_until(9.1);
+  CHECK(net.target->started());
+  net.Pump(late);
+  net.RunUntil(6, late);
+  for (AgentId id : {1, 2, 3}) CHECK(net.agents.at(id)->last_written_step() == 6);
+  CHECK(net.target->current_step() == 6);
+}
+
 TEST_CASE("In lock-step the target waits while no agent is alive, goes on when one is back, and "
           "ends with an error after start_timeout_s without one",
           "[protocol]") {
