@@ -527,7 +527,8 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .Default(30.0)
       .Seconds()
       .Doc("The longest wait for the target: at the start, and when it falls silent "
-           "mid-run.");
+           "mid-run. The target's wait for the agents at the start: it starts with whoever "
+           "is there once this long has passed without a new agent.");
   t.Add("fusion_window_steps", [](Config& c) -> auto& { return c.network.fusion_window_steps; })
       .Default(2)
       .AtLeast(0)
