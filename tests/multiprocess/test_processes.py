@@ -14,6 +14,7 @@ import subprocess
 import time
 
 from deif import artefacts, launcher, paths
+from process_fixtures import oracle
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SLOW_CIRCLE = os.path.join(HERE, "configs", "slow_circle.yaml")
@@ -27,14 +28,6 @@ def rows(run, j):
 def launch(work, domain, name="run", config=SLOW_CIRCLE, **kw):
     kw.setdefault("progress", False)
     return launcher.run(config, os.path.join(work, name), domain=domain, **kw)
-
-
-def oracle(run_dir, work=None):
-    """The in-process simulation of the run's own config (faults included)."""
-    out = run_dir + "-oracle"
-    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(run_dir, "config.yaml"),
-                    "--out", out, "--quiet"], check=True)
-    return out
 
 
 def largest_difference(run_dir, ref_dir, agents, keys=("x_est", "y_est", "p_xx", "p_xy", "p_yy",

@@ -6,9 +6,9 @@ The tests assert what must always hold on a shared 2-core machine; the figures (
 as written, RMSE ratios, rates) are measured by scripts/deif-bench (docs/BENCHMARKS.md).
 """
 import os
-import subprocess
 
 from deif import artefacts, launcher, paths
+from process_fixtures import oracle
 
 DEFAULT = os.path.join(paths.ROOT, "configs", "default.yaml")
 REALTIME = ["scenario.mode=realtime", "scenario.period_s=0.1"]
@@ -16,14 +16,6 @@ REALTIME = ["scenario.mode=realtime", "scenario.period_s=0.1"]
 
 def rows(run, j):
     return artefacts.read_csv(os.path.join(run, f"agent_{j}.csv"))
-
-
-def oracle_of(run):
-    """The in-process simulation (all to all, no network) of the run's effective config."""
-    out = run + "-oracle"
-    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(run, "config.yaml"),
-                    "--out", out, "--quiet"], check=True)
-    return out
 
 
 def settled_steps_agree(by_agent, after):
@@ -56,9 +48,9 @@ def test_lockstep_10_percent_loss(work, domain):
                        loss=0.10, progress=False)
     assert res.ok, res.why_not_ok()
     assert every_step_written(res.out_dir, range(1, 5), 200)
-    oracle = oracle_of(res.out_dir)
+    sim = oracle(res.out_dir)
     for j in range(1, 5):
-        ref = {r["step"]: r for r in rows(oracle, j)}
+        ref = {r["step"]: r for r in rows(sim, j)}
         for r in rows(res.out_dir, j):
             assert r["x_est"] == ref[r["step"]]["x_est"] and r["y_est"] == ref[r["step"]]["y_est"]
             assert r["complete"] == "1"
@@ -128,11 +120,11 @@ def test_tree_lockstep_10_percent_loss(work, domain):
                        loss=0.10, overrides=TREE, progress=False)
     assert res.ok, res.why_not_ok()
     assert every_step_written(res.out_dir, range(1, 10), 120)
-    oracle = oracle_of(res.out_dir)
+    sim = oracle(res.out_dir)
     for j in range(1, 10):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
             assert "exchange: tree, fan-out 2" in f.read()
-        ref = {r["step"]: r for r in rows(oracle, j)}
+        ref = {r["step"]: r for r in rows(sim, j)}
         for r in rows(res.out_dir, j):
             assert (r["x_est"], r["y_est"], r["p_xx"]) == \
                 (ref[r["step"]]["x_est"], ref[r["step"]]["y_est"], ref[r["step"]]["p_xx"]), (j, r["step"])

@@ -1,9 +1,11 @@
 """Fixtures shared by every test group that starts the project's processes (multiprocess,
 network, live, interop, cli): the DDS domain and the work folder ctest gives each test (so
-two tests never see each other; docs/TESTING.md), and the project's scripts on sys.path.
-A group's conftest.py imports them."""
+two tests never see each other; docs/TESTING.md), the project's scripts on sys.path, and
+the in-process simulation a run is compared with. A group's conftest.py imports the
+fixtures; its tests import `oracle`."""
 import os
 import shutil
+import subprocess
 import sys
 
 import pytest
@@ -25,3 +27,13 @@ def work(tmp_path):
     shutil.rmtree(path, ignore_errors=True)
     os.makedirs(path)
     return path
+
+
+def oracle(run_dir, work=None):
+    """The in-process simulation (all to all, no network) of the run's own config (faults
+    included), written beside the run; returns its folder."""
+    from deif import paths
+    out = run_dir + "-oracle"
+    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(run_dir, "config.yaml"),
+                    "--out", out, "--quiet"], check=True)
+    return out
