@@ -85,7 +85,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
                      config_.network.domain_id, instance_token_);
   if (tree_) {
-    context_.log->info("exchange: tree, fan-out {}, parent {} (docs/SCALING.md)", config_.network.tree_fanout,
+    context_.log->info("exchange: tree, fan-out {}, parent {} (docs/SCALING.md)", EffectiveTreeFanout(config_),
                        ParentName(tree_->place().parent));
   } else {
     context_.log->info("exchange: all to all");

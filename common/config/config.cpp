@@ -895,6 +895,14 @@ ExchangeKind EffectiveExchange(const Config& config) {
   return plain && config.agents.count >= kTreeFromAgents ? ExchangeKind::kTree : ExchangeKind::kAllToAll;
 }
 
+int EffectiveTreeFanout(const Config& config) {
+  if (config.network.tree_fanout > 0) return config.network.tree_fanout;
+  const long n = std::max(1, config.agents.count);
+  long f = kMinAutoFanout;
+  while (1 + f + f * f < n) ++f;
+  return static_cast<int>(f);
+}
+
 std::string ToYaml(const Config& config) {
   YAML::Emitter out;
   out << YAML::BeginMap;

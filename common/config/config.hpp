@@ -101,7 +101,7 @@ struct NetworkConfig {
   double heartbeat_response_delay_s = 0.001;  // reliable readers [s]
   double deadline_fraction = 0.8;    // real time: fuse by this fraction of the period
   ExchangeKind exchange = ExchangeKind::kAuto;
-  int tree_fanout = 4;               // exchange: tree: children per relay
+  int tree_fanout = 0;               // exchange: tree: children per relay; 0: auto
   double relay_wait_s = 0.02;        // exchange: tree: a relay's longest wait for its children
   TransportKind transport = TransportKind::kShm;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
@@ -159,6 +159,14 @@ inline constexpr int kTreeFromAgents = 17;
 // security, ros2_naming or a Discovery Server, below kTreeFromAgents agents, and the tree
 // otherwise.
 ExchangeKind EffectiveExchange(const Config& config);
+// The tree's fan-out a run uses: network.tree_fanout, with 0 (auto) resolved from
+// agents.count to the smallest fan-out F whose tree holds every agent within two levels
+// below the root (1 + F + F^2 >= N), and at least kMinAutoFanout: 4 up to 21 agents, 8 at
+// 64, 11 at 128. Each level is a hop up and a hop down in a row, so a third level costs a
+// real-time step two more hops (docs/SCALING.md). Every agent derives it from the same
+// config, so every agent builds the same tree.
+inline constexpr int kMinAutoFanout = 4;
+int EffectiveTreeFanout(const Config& config);
 
 // The struct defaults above equal the schema's (a unit test checks it); ParseConfig starts
 // from the schema's.

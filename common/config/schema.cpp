@@ -589,20 +589,23 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "unchanged (docs/SCALING.md). auto: the tree from 17 agents on, unless "
            "security.enabled, ros2_naming or discovery: server; all_to_all otherwise.");
   t.Add("tree_fanout", [](Config& c) -> auto& { return c.network.tree_fanout; })
-      .Default(4)
-      .AtLeast(1)
+      .Default(0)
+      .AtLeast(0)
       .AtMost(64)
       .Doc("exchange: tree: children per relay. Fewer: more hops in a row (about "
-           "2 log_fanout N); more: more deliveries wait on one relay.");
+           "2 log_fanout N); more: more deliveries wait on one relay. 0: auto, the smallest "
+           "fan-out (at least 4) whose tree holds every agent within two levels below the "
+           "root: 4 up to 21 agents, 8 at 64, 11 at 128 (docs/SCALING.md).");
   t.Add("relay_wait_s", [](Config& c) -> auto& { return c.network.relay_wait_s; })
       .Default(0.02)
       .AtLeast(0.0)
       .AtMost(10.0)
       .Unit("s")
       .Doc("exchange: tree, realtime mode: how long a relay waits for its children's batches "
-           "of a step before it forwards what it holds; what comes later goes on, gathered "
-           "for half this time, and is fused late. Keep it well within the period. In "
-           "lockstep a relay waits at least a quarter of step_timeout_s.");
+           "of a step before it forwards what it holds; what comes later goes on at once "
+           "and is fused late. Keep it well within the period. In lockstep a relay waits "
+           "at least a quarter of step_timeout_s, and gathers what comes later for half "
+           "that wait.");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
       .Default(TransportKind::kShm)
       .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "

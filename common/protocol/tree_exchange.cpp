@@ -58,7 +58,7 @@ double RelayWaitS(const Config& config) {
 TreeExchange::TreeExchange(const Config& config, Options options)
     : config_(config),
       options_(options),
-      fanout_(std::max(1, config.network.tree_fanout)),
+      fanout_(EffectiveTreeFanout(config)),
       wait_s_(RelayWaitS(config)),
       // Late ones are gathered for half a wait in lock-step (a sample per late child
       // overran a relay's history between 4 hosts), sent at once in real time, where every

@@ -166,7 +166,7 @@ TEST_CASE("Every bad config is rejected with a message naming key, line and rule
        "network.exchange", "exchange: tree needs ros2_naming: false", 3},
       {"unknown exchange", "network:\n  exchange: gossip\n", "network.exchange",
        "allowed: auto, all_to_all, tree", 2},
-      {"tree fan-out zero", "network:\n  tree_fanout: 0\n", "network.tree_fanout", "must be in 1..64", 2},
+      {"tree fan-out negative", "network:\n  tree_fanout: -1\n", "network.tree_fanout", "must be in 0..64", 2},
       {"beta zero", "sensing:\n  beta: 0\n", "sensing.beta", "positive integer or -1", 2},
       {"beta fractional", "sensing:\n  beta: 1.5\n", "sensing.beta", "positive integer or -1",
        2},

@@ -162,6 +162,40 @@ TEST_CASE("The tree of the members: member m's parent is member (m - 1) / F", "[
   CHECK(protocol::SubtreeOf(ten, 11, 3).empty());
 }
 
+TEST_CASE("The auto fan-out holds every agent within two levels below the root", "[protocol][tree]") {
+  // Worked by hand from 1 + F + F^2 >= N, F >= 4.
+  const std::vector<std::pair<int, int>> expected = {{2, 4},  {17, 4},  {21, 4}, {22, 5}, {31, 5},  {32, 6},
+                                                     {64, 8}, {73, 8}, {74, 9}, {128, 11}, {512, 23}};
+  for (const auto& [n, fanout] : expected) {
+    INFO("agents " << n);
+    CHECK(deif::EffectiveTreeFanout(ConfigFor(n, 0)) == fanout);
+  }
+  // A fan-out set by hand is kept.
+  CHECK(deif::EffectiveTreeFanout(ConfigFor(64, 3)) == 3);
+  // And the property itself, on the tree every agent builds: depth <= 2 at every N, and
+  // depth 2 would not hold with one child fewer per relay (above the floor of 4).
+  for (int n = 2; n <= 512; ++n) {
+    const int fanout = deif::EffectiveTreeFanout(ConfigFor(n, 0));
+    const std::vector<AgentId> members = Range(1, n);
+    auto depth_of = [&members](AgentId id, int f) {
+      int depth = 0;
+      for (auto parent = protocol::PlaceInTree(members, id, f).parent; parent;
+           parent = protocol::PlaceInTree(members, *parent, f).parent) {
+        ++depth;
+      }
+      return depth;
+    };
+    int deepest = 0, deepest_narrower = 0;
+    for (AgentId id : members) {
+      deepest = std::max(deepest, depth_of(id, fanout));
+      deepest_narrower = std::max(deepest_narrower, depth_of(id, fanout - 1));
+    }
+    INFO("agents " << n << ", fan-out " << fanout);
+    CHECK(deepest <= 2);
+    if (fanout > deif::kMinAutoFanout) CHECK(deepest_narrower > 2);
+  }
+}
+
 TEST_CASE("Every contribution reaches every agent once, in 2 (N - 1) batches a step", "[protocol][tree]") {
   const int n = GENERATE(2, 5, 13, 40);
   const int fanout = GENERATE(1, 2, 4);
