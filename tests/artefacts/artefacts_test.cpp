@@ -4,6 +4,7 @@
 
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -11,6 +12,7 @@
 #include <vector>
 
 #include "common/artefacts/artefacts.hpp"
+#include "common/artefacts/delay_histogram.hpp"
 
 namespace fs = std::filesystem;
 
@@ -150,4 +152,33 @@ TEST_CASE("FormatDouble writes 17 significant digits that read back exactly", "[
 TEST_CASE("A CSV that cannot be created throws naming the path", "[artefacts]") {
   const std::string path = "/nonexistent_dir_for_deif/target.csv";
   CHECK_THROWS_WITH(deif::TargetCsv(path), Catch::Contains(path));
+}
+
+TEST_CASE("A delay histogram's quantiles are within one bin above the true ones", "[artefacts]") {
+  deif::DelayHistogram h;
+  CHECK(h.count() == 0);
+  CHECK(h.Quantile(0.5) == 0.0);
+  // 1, 2, ..., 1000 ms: the true p50 is 500 ms, p99 990 ms.
+  for (int ms = 1; ms <= 1000; ++ms) h.Add(1e-3 * ms);
+  CHECK(h.count() == 1000);
+  CHECK(h.max_s() == Approx(1.0));
+  CHECK(h.Quantile(0.5) >= 0.500);
+  CHECK(h.Quantile(0.5) <= 0.500 * 1.13);
+  CHECK(h.Quantile(0.99) >= 0.990);
+  CHECK(h.Quantile(0.99) <= 1.0);  // never above the largest delay seen
+  CHECK(h.Quantile(1.0) == Approx(1.0));
+}
+
+TEST_CASE("A delay histogram counts negative, tiny and huge delays at its ends", "[artefacts]") {
+  deif::DelayHistogram h;
+  h.Add(-0.5);  // two hosts' clocks
+  h.Add(std::nan(""));
+  h.Add(1e-9);
+  CHECK(h.count() == 3);
+  CHECK(h.max_s() == 1e-9);
+  CHECK(h.Quantile(1.0) <= 1e-5 * std::pow(10.0, 1.0 / 20));
+  h.Add(1e6);  // beyond the last bin: counted there, its max kept
+  CHECK(h.count() == 4);
+  CHECK(h.max_s() == 1e6);
+  CHECK(h.Quantile(1.0) == Approx(100.0));  // the last bin's upper edge
 }
