@@ -1,7 +1,6 @@
 #include "agent/agent_node.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -153,7 +152,7 @@ int AgentNode::Run() {
     }
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    RecordDelivery(events);
+    delivery_.Record(events);
     // The members the tree is made of, once the run has begun (before, discovery is still
     // going on and the tree of every agent of the run stands).
     if (tree_ && tree_live_) {
@@ -190,7 +189,9 @@ int AgentNode::Run() {
                      c.rejected, c.dropped, c.late, c.deadline_misses, c.adoptions, c.merges,
                      protocol_.lapses_forgiven(), acknowledged ? "" : "not all ");
   for (const auto& [reason, count] : c.by_reason) context_.log->info("  {}: {}", reason, count);
-  LogDelivery();
+  if (const std::string delays = delivery_.Summary(); !delays.empty()) {
+    context_.log->info("delivery delays p50 / p99 [ms]: {}", delays);
+  }
   WriteCounters();
   return exit_code_.value_or(protocol::kExitOk);
 }
@@ -251,46 +252,14 @@ void AgentNode::ReportMatches(double now_s) {
   protocol_.OnTargetParticipant(node_.TargetUp(), now_s);
 }
 
-void AgentNode::RecordDelivery(const std::vector<dds::Event>& events) {
-  if (events.empty()) return;
-  const double now_unix_s =
-      std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-  for (const dds::Event& event : events) {
-    if (const auto* range = std::get_if<dds::Received<protocol::RangeMsg>>(&event)) {
-      delivery_["range"].Add(now_unix_s - range->written_unix_s);
-    } else if (const auto* batch = std::get_if<dds::Received<protocol::BatchMsg>>(&event)) {
-      delivery_[batch->msg.down ? "relay_down" : "relay_up"].Add(now_unix_s - batch->written_unix_s);
-    } else if (const auto* c = std::get_if<dds::Received<protocol::ContributionMsg>>(&event)) {
-      delivery_["contribution"].Add(now_unix_s - c->written_unix_s);
-    }
-  }
-}
-
-void AgentNode::LogDelivery() const {
-  std::string text;
-  for (const auto& [kind, h] : delivery_) {
-    text += fmt::format("{}{} {:.1f} / {:.1f}", text.empty() ? "" : ", ", kind, 1e3 * h.Quantile(0.5),
-                        1e3 * h.Quantile(0.99));
-  }
-  if (!text.empty()) context_.log->info("delivery delays p50 / p99 [ms]: {}", text);
-}
-
 void AgentNode::WriteCounters() const {
   if (context_.options.out_dir.empty()) return;
   const auto& c = protocol_.counters();
-  nlohmann::json delivery = nlohmann::json::object();
-  for (const auto& [kind, h] : delivery_) {
-    delivery[kind] = {{"count", h.count()},
-                      {"p50", 1e3 * h.Quantile(0.5)},
-                      {"p90", 1e3 * h.Quantile(0.9)},
-                      {"p99", 1e3 * h.Quantile(0.99)},
-                      {"max", 1e3 * h.max_s()}};
-  }
   const nlohmann::json counters = {{"rejected", c.rejected},   {"dropped", c.dropped},
                                    {"late", c.late},           {"deadline_misses", c.deadline_misses},
                                    {"adoptions", c.adoptions}, {"merges", c.merges},
                                    {"lapses_forgiven", protocol_.lapses_forgiven()},
-                                   {"by_reason", c.by_reason}, {"delivery_ms", delivery}};
+                                   {"by_reason", c.by_reason}, {"delivery_ms", delivery_.ToJson()}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) /
                  ("agent_" + std::to_string(id_) + ".counters.json")).string())
       << counters.dump(2) << "\n";

@@ -6,7 +6,6 @@
 
 #include <atomic>
 #include <cstdint>
-#include <map>
 #include <optional>
 #include <set>
 #include <string>
@@ -14,11 +13,11 @@
 #include <vector>
 
 #include "common/artefacts/artefacts.hpp"
-#include "common/artefacts/delay_histogram.hpp"
 #include "common/protocol/agent_protocol.hpp"
 #include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/tree_exchange.hpp"
 #include "dds/application.hpp"
+#include "dds/delivery.hpp"
 #include "dds/node.hpp"
 
 namespace deif::agent {
@@ -64,10 +63,6 @@ class AgentNode : public dds::Application {
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason, and
   // how long samples took to reach it.
   void WriteCounters() const;
-  // Delivery delays (docs/ARTEFACTS.md, "Delivery delays"): from each sample's writer (its
-  // source timestamp) to this process taking it, by kind.
-  void RecordDelivery(const std::vector<dds::Event>& events);
-  void LogDelivery() const;
 
   dds::ProcessContext& context_;
   const Config& config_;
@@ -80,7 +75,7 @@ class AgentNode : public dds::Application {
   std::pair<std::uint64_t, std::uint64_t> tree_version_{~0ull, ~0ull};
   bool tree_live_ = false;  // the run has begun: the tree follows the members
   std::optional<AgentCsv> csv_;
-  std::map<std::string, DelayHistogram> delivery_;  // "range", "contribution", "relay_up", ...
+  dds::DeliveryDelays delivery_;  // docs/ARTEFACTS.md, "Delivery delays"
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)

@@ -136,6 +136,7 @@ int TargetNode::Run() {
   while (!stop_requested_ && !protocol_.finished()) {
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
+    delivery_.Record(events);
     for (const dds::Event& event : events) Dispatch(event, now_s);
     std::deque<StepIndex> go;
     {
@@ -167,6 +168,9 @@ int TargetNode::Run() {
   for (const auto& [reason, count] : protocol_.rejected_by_reason()) {
     context_.log->info("  {}: {}", reason, count);
   }
+  if (const std::string delays = delivery_.Summary(); !delays.empty()) {
+    context_.log->info("delivery delays p50 / p99 [ms]: {}", delays);
+  }
   WriteCounters();
   if (!stop_requested_) node_.WaitForAcknowledgments(1.0);  // the last ranges reach the agents
   return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);
@@ -190,7 +194,8 @@ void TargetNode::WriteCounters() const {
   for (const auto& [reason, count] : protocol_.rejected_by_reason()) rejected += count;
   const nlohmann::json counters = {{"rejected", rejected},
                                    {"lapses_forgiven", protocol_.lapses_forgiven()},
-                                   {"by_reason", protocol_.rejected_by_reason()}};
+                                   {"by_reason", protocol_.rejected_by_reason()},
+                                   {"delivery_ms", delivery_.ToJson()}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) / "target.counters.json").string())
       << counters.dump(2) << "\n";
 }

@@ -15,6 +15,7 @@
 #include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/target_protocol.hpp"
 #include "dds/application.hpp"
+#include "dds/delivery.hpp"
 #include "dds/node.hpp"
 
 namespace deif::target {
@@ -65,6 +66,7 @@ class TargetNode : public dds::Application {
   std::thread control_thread_;
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
+  dds::DeliveryDelays delivery_;  // docs/ARTEFACTS.md, "Delivery delays"
 };
 
 }  // namespace deif::target

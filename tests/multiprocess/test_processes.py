@@ -719,6 +719,8 @@ def test_tree_equality(work, domain):
         assert "contribution" not in delivery, delivery
         for d in delivery.values():
             assert 0 < d["p50"] <= d["p90"] <= d["p99"] < 10_000, delivery
+    # The target took every agent's state of every step.
+    assert res.summary["counters"]["target"]["delivery_ms"]["state"]["count"] >= 7 * 200
 
 
 def test_tree_auto(work, domain):
