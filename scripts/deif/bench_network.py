@@ -220,6 +220,7 @@ def run_realtime_scale(ns, domains, work_dir, steps):
             complete += sum(r["complete"] == "1" for r in rows)
         m = res.summary.get("metrics", {})
         out.append({"n": n, "steps": steps, "ok": res.ok,
+                    "delivery_ms": launcher.median_delivery_ms(res.summary.get("counters", {})),
                     "rows_written_fraction": sum(written) / (n * steps),
                     "complete_fraction": complete / total if total else None,
                     "agreement_fraction": m.get("agreement_fraction"),
@@ -230,15 +231,17 @@ def run_realtime_scale(ns, domains, work_dir, steps):
 def realtime_table(rows):
     lines = ["**Real time at 10 Hz on this host** (default config, N agents)", "",
              "| N | finished | rows written | agent-steps with every member fused by the deadline "
-             "| agree <= 1e-6 | agents at the end | RMSE [m] |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+             "| agree <= 1e-6 | agents at the end | RMSE [m] | delivery p50 / p99 [ms], median agent |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['n']} | FAILED: {r['error'].splitlines()[-1]} | | | | | |")
+            lines.append(f"| {r['n']} | FAILED: {r['error'].splitlines()[-1]} | | | | | | |")
             continue
         f = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
         lines.append(f"| {r['n']} | {'ok' if r['ok'] else 'NO'} | {r['rows_written_fraction']:.1%} | "
                      f"{f(r['complete_fraction'], '.1%')} | {f(r['agreement_fraction'], '.1%')} | "
-                     f"{r['final_agents']} | {f(r['rmse_m'], '.4f')} |")
+                     f"{r['final_agents']} | {f(r['rmse_m'], '.4f')} | "
+                     + ", ".join(f"{k} {v[0]:.1f} / {v[1]:.1f}" for k, v in sorted(r.get("delivery_ms", {}).items()))
+                     + " |")
     lines.append("")
     return "\n".join(lines)

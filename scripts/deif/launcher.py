@@ -787,3 +787,16 @@ def run(config_path, out_dir, live=None, **kwargs):
         for s, handler in previous.items():
             signal.signal(s, handler)
     return launcher.finish()
+
+
+def median_delivery_ms(counters):
+    """Per kind of sample the agents took, the median over the agents of each one's p50 and
+    of each one's p99 delivery delay [ms] (docs/ARTEFACTS.md, "Delivery delays"), from
+    summary.json's `counters`: {"range": [p50, p99], ...}."""
+    by_kind = {}
+    for name, c in counters.items():
+        if name.startswith("agent"):
+            for kind, d in (c.get("delivery_ms") or {}).items():
+                by_kind.setdefault(kind, []).append((d["p50"], d["p99"]))
+    return {kind: [sorted(v[i] for v in rows)[len(rows) // 2] for i in (0, 1)]
+            for kind, rows in by_kind.items()}

@@ -157,6 +157,22 @@ def test_network_table_from_made_up_figures():
     assert "| 10% | 0.0250 +- 0.0010 | 0.0300 | 99.0% | 98.0% |" in table
 
 
+def test_realtime_table_takes_the_median_agent_delivery_delays():
+    from deif import bench_network, launcher
+    counters = {"target": {"delivery_ms": {"state": {"p50": 99.0, "p99": 99.0}}},
+                "agent_1": {"delivery_ms": {"range": {"p50": 1.0, "p99": 9.0}}},
+                "agent_2": {"delivery_ms": {"range": {"p50": 3.0, "p99": 5.0},
+                                            "relay_down": {"p50": 7.0, "p99": 20.0}}},
+                "agent_3": {"delivery_ms": {"range": {"p50": 2.0, "p99": 30.0}}},
+                "agent_4": {}}
+    # The target's states are not the agents'; each quantile's median on its own.
+    assert launcher.median_delivery_ms(counters) == {"range": [2.0, 9.0], "relay_down": [7.0, 20.0]}
+    row = {"n": 3, "steps": 10, "ok": True, "rows_written_fraction": 1.0, "complete_fraction": 1.0,
+           "agreement_fraction": 1.0, "final_agents": 3, "rmse_m": 0.01,
+           "delivery_ms": launcher.median_delivery_ms(counters)}
+    assert "| 0.0100 | range 2.0 / 9.0, relay_down 7.0 / 20.0 |" in bench_network.realtime_table([row])
+
+
 def test_disagreement_runs_are_maximal_runs_of_steps_above_1e_6():
     from deif import bench_network
     steps = [{"step": str(k), "max_disagreement": str(v)}
