@@ -152,7 +152,9 @@ int AgentNode::Run() {
     }
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    delivery_.Record(events);
+    // From the first step on: before it, what arrives comes from the DDS histories of
+    // writers just matched, and its delay is the wait for the start (docs/ARTEFACTS.md).
+    if (protocol_.last_written_step() >= 1) delivery_.Record(events);
     // The members the tree is made of, once the run has begun (before, discovery is still
     // going on and the tree of every agent of the run stands).
     if (tree_ && tree_live_) {

@@ -136,7 +136,7 @@ int TargetNode::Run() {
   while (!stop_requested_ && !protocol_.finished()) {
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    delivery_.Record(events);
+    if (protocol_.started()) delivery_.Record(events);  // from the first step on (as the agents)
     for (const dds::Event& event : events) Dispatch(event, now_s);
     std::deque<StepIndex> go;
     {

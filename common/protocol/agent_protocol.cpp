@@ -395,6 +395,12 @@ std::optional<InfoState> AgentProtocol::PosteriorOf(StepIndex k) const {
   return it->second.posterior;
 }
 
+int AgentProtocol::MemberCount() const {
+  int count = 1;  // this agent
+  for (const auto& [peer_id, peer] : peers_) count += peer.writer && peer.alive && peer_id != id_ ? 1 : 0;
+  return count;
+}
+
 std::set<AgentId> AgentProtocol::Members() const {
   std::set<AgentId> members{id_};
   for (const auto& [peer_id, peer] : peers_) {
@@ -655,7 +661,7 @@ void AgentProtocol::FinishStep(double now_s) {
   row.covariance = posterior.PositionCovariance();
   row.position_m = position_m_;
   row.angle_rad = angle_rad_;
-  row.alive = static_cast<int>(Members().size());
+  row.alive = MemberCount();
   row.fused = r.fused;
   row.rejected = static_cast<long>(counters_.rejected);
   row.dropped = static_cast<long>(counters_.dropped);
@@ -1007,7 +1013,7 @@ StateMsg AgentProtocol::MakeState(StepIndex step, const InfoState& posterior, in
   msg.angle_rad = angle_rad_;
   msg.estimate_m = filter.PositionEstimate();
   msg.covariance = filter.PositionCovariance();
-  msg.alive = static_cast<int>(Members().size());
+  msg.alive = MemberCount();
   msg.fused = fused;
   msg.complete = complete;
   msg.deadline_misses = counters_.deadline_misses;

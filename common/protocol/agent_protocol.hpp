@@ -151,6 +151,7 @@ class AgentProtocol {
   std::optional<InfoState> PosteriorOf(StepIndex k) const;
   // Members believed alive: this agent and every bound peer whose contribution writer lives.
   std::set<AgentId> Members() const;
+  int MemberCount() const;  // Members().size(), without building the set (each row and state)
   // The roll call of step k as this protocol accepted it from its target (validated, from
   // the bound writer), while k is pending or within the history; nullopt otherwise.
   std::optional<std::vector<AgentId>> RollCallOf(StepIndex k) const;

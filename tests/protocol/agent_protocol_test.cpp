@@ -1167,6 +1167,7 @@ TEST_CASE("A relayed contribution of a peer seen lost does not make it a member 
   net.Liveliness(1, 2, false);
   net.AdvanceTime(1.0);
   REQUIRE(net.agents.at(1)->Members().count(2) == 0);
+  CHECK(net.agents.at(1)->MemberCount() == 2);  // itself and 3
   // WHEN a relay's history brings one of 2's old contributions
   net.agents.at(1)->OnContributions({{old, KeyOf(2)}}, net.now);
   // THEN 2 stays out; its liveliness brings it back
@@ -1174,6 +1175,7 @@ TEST_CASE("A relayed contribution of a peer seen lost does not make it a member 
   CHECK(net.agents.at(1)->LostPeers().count(2) == 1);
   net.Liveliness(1, 2, true);
   CHECK(net.agents.at(1)->Members().count(2) == 1);
+  CHECK(net.agents.at(1)->MemberCount() == 3);
   // A contribution straight from its writer still does, as before (all to all).
   net.Liveliness(1, 3, false);
   net.AdvanceTime(1.0);
