@@ -9,39 +9,44 @@ namespace deif::protocol {
 
 namespace {
 
-// The index of `id` in the sorted members, or -1.
-long IndexOf(const std::vector<AgentId>& members, AgentId id) {
-  const auto it = std::lower_bound(members.begin(), members.end(), id);
-  return it != members.end() && *it == id ? static_cast<long>(it - members.begin()) : -1;
+bool IsMember(const std::vector<AgentId>& members, AgentId id) {
+  return std::binary_search(members.begin(), members.end(), id);
+}
+
+// The parent of `id` in the tree of every id 1, 2, 3, ... (1 the root): always a lower id.
+std::optional<AgentId> IdParent(AgentId id, int fanout) {
+  if (id <= 1) return std::nullopt;
+  return static_cast<AgentId>((id - 2) / fanout + 1);
 }
 
 }  // namespace
 
+std::optional<AgentId> ParentInTree(const std::vector<AgentId>& members, AgentId id, int fanout) {
+  if (fanout < 1 || members.empty() || !IsMember(members, id) || id == members.front()) return std::nullopt;
+  for (auto up = IdParent(id, fanout); up; up = IdParent(*up, fanout)) {
+    if (IsMember(members, *up)) return up;
+  }
+  return members.front();  // no member above it: under the root
+}
+
 TreePlace PlaceInTree(const std::vector<AgentId>& members, AgentId self, int fanout) {
   TreePlace place;
-  const long m = IndexOf(members, self);
-  if (m < 0 || fanout < 1) return place;
-  if (m > 0) place.parent = members[static_cast<std::size_t>((m - 1) / fanout)];
-  const long n = static_cast<long>(members.size());
-  for (long c = m * fanout + 1; c <= m * fanout + fanout && c < n; ++c) {
-    place.children.push_back(members[static_cast<std::size_t>(c)]);
+  if (fanout < 1 || !IsMember(members, self)) return place;
+  place.parent = ParentInTree(members, self, fanout);
+  for (AgentId m : members) {
+    if (m != self && ParentInTree(members, m, fanout) == self) place.children.push_back(m);
   }
   return place;
 }
 
 std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, int fanout) {
   std::vector<AgentId> out;
-  const long root = IndexOf(members, id);
-  if (root < 0 || fanout < 1) return out;
-  const long n = static_cast<long>(members.size());
-  // Breadth first: the indices of each level form one contiguous run.
-  long first = root, last = root;
-  while (first < n) {
-    for (long i = first; i <= std::min(last, n - 1); ++i) out.push_back(members[static_cast<std::size_t>(i)]);
-    first = first * fanout + 1;
-    last = last * fanout + fanout;
+  if (fanout < 1 || !IsMember(members, id)) return out;
+  for (AgentId m : members) {  // ascending
+    std::optional<AgentId> at = m;
+    while (at && *at > id) at = ParentInTree(members, *at, fanout);  // ancestors have lower ids
+    if (at == id) out.push_back(m);
   }
-  std::sort(out.begin(), out.end());
   return out;
 }
 

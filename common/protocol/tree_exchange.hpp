@@ -3,9 +3,9 @@
 // a child or from the parent, a roll call, the members, the clock), actions out (send a
 // batch up or down, hand a contribution to the step protocol, move to another parent).
 //
-// The members, sorted by id, form a tree: member number m (from 0) has parent number
-// (m - 1) / F and children m F + 1 .. m F + F. Every agent computes it from the same
-// membership, so no election is needed. A step's contributions go up, each relay sending
+// The members form a tree (PlaceInTree below): that of every id of the run with fan-out F,
+// in which a lost member's children hang under its parent. Every agent computes it from the
+// same membership, so no election is needed. A step's contributions go up, each relay sending
 // its subtree's as one batch once it holds its own and one batch of the step from each
 // child that has a measured agent below it (or after network.relay_wait_s, whichever comes
 // first); the root sends all of them down as one batch, which every relay passes on to its
@@ -34,13 +34,20 @@
 
 namespace deif::protocol {
 
-// An agent's place in the tree of `members` (ascending ids; `self` among them).
+// The tree of the members (ascending ids) is the tree of every id 1, 2, 3, ... with fan-out
+// F (id i's parent is id (i - 2) / F + 1), in which a member's parent is its nearest
+// ancestor that is a member, and a member with none hangs under the lowest member, the root.
+// So a lost member moves only its own children (to its parent), and the rest of the tree
+// stands: each move is announced to every participant (docs/SCALING.md).
+// The parent of member `id`; nullopt for the root, or when `id` is not a member.
+std::optional<AgentId> ParentInTree(const std::vector<AgentId>& members, AgentId id, int fanout);
+// An agent's place in the tree of `members` (`self` among them).
 struct TreePlace {
   std::optional<AgentId> parent;  // nullopt: the root
   std::vector<AgentId> children;
 };
 TreePlace PlaceInTree(const std::vector<AgentId>& members, AgentId self, int fanout);
-// The ids of the subtree under `id` (itself included); empty if `id` is not a member.
+// The ids of the subtree under `id` (itself included, ascending); empty if `id` is not a member.
 std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, int fanout);
 
 // How long a relay waits for its children's batches of a step: network.relay_wait_s in real

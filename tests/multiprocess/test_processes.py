@@ -753,9 +753,13 @@ def test_tree_relay_killed(work, domain):
         assert int(rows(res.out_dir, j)[-1]["fused"]) == 5
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 8))
     assert worst == 0.0, f"largest difference from the oracle {worst:.3g}"
-    # 4 and 5 lost their parent: each moved (members 1 3 4 5 6 7: 4 under 1, 5 under 3).
-    assert any("parent now agent 1" in line for line in relay_log_lines(res.out_dir, 4))
-    assert any("parent now agent 3" in line for line in relay_log_lines(res.out_dir, 5))
+    # 4 and 5 lost their parent and moved to its parent, 1; nobody else moved (6 and 7 stay
+    # under 3, and 7, a leaf, took nobody with it).
+    for j in (4, 5):
+        assert [line.split("parent now ")[1].split()[:2] for line in relay_log_lines(res.out_dir, j)] == \
+            [["agent", "1"]], relay_log_lines(res.out_dir, j)
+    for j in (1, 3, 6):
+        assert relay_log_lines(res.out_dir, j) == [], relay_log_lines(res.out_dir, j)
 
 
 def test_tree_frozen_relay(work, domain):

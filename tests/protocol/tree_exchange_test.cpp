@@ -141,7 +141,7 @@ struct Network {
 
 }  // namespace
 
-TEST_CASE("The tree of the members: member m's parent is member (m - 1) / F", "[protocol][tree]") {
+TEST_CASE("The tree of the members: id i's parent is id (i - 2) / F + 1", "[protocol][tree]") {
   const std::vector<AgentId> ten = Range(1, 10);
   CHECK_FALSE(protocol::PlaceInTree(ten, 1, 3).parent.has_value());
   CHECK(protocol::PlaceInTree(ten, 1, 3).children == std::vector<AgentId>{2, 3, 4});
@@ -151,15 +151,60 @@ TEST_CASE("The tree of the members: member m's parent is member (m - 1) / F", "[
   CHECK(protocol::PlaceInTree(ten, 4, 3).children.empty());
   CHECK(protocol::SubtreeOf(ten, 2, 3) == std::vector<AgentId>{2, 5, 6, 7});
   CHECK(protocol::SubtreeOf(ten, 1, 3) == ten);
-  // Gaps in the ids: places follow the sorted members, not the ids.
+  // Gaps in the ids: a member's parent is its nearest ancestor that is a member. With
+  // fan-out 2 the ids' tree is 1 > {2, 3}, 2 > {4, 5}, 3 > {6, 7}, 4 > {8, 9}, 6 > {12, 13}.
   const std::vector<AgentId> gaps{1, 2, 4, 7, 9, 12};
-  CHECK(*protocol::PlaceInTree(gaps, 7, 2).parent == 2);
-  CHECK(*protocol::PlaceInTree(gaps, 12, 2).parent == 4);
-  CHECK(protocol::SubtreeOf(gaps, 2, 2) == std::vector<AgentId>{2, 7, 9});
+  CHECK(*protocol::PlaceInTree(gaps, 7, 2).parent == 1);   // 3 is not a member
+  CHECK(*protocol::PlaceInTree(gaps, 12, 2).parent == 1);  // nor 6, nor 3
+  CHECK(*protocol::PlaceInTree(gaps, 9, 2).parent == 4);
+  CHECK(protocol::PlaceInTree(gaps, 1, 2).children == std::vector<AgentId>{2, 7, 12});
+  CHECK(protocol::SubtreeOf(gaps, 2, 2) == std::vector<AgentId>{2, 4, 9});
+  // Without the root, the lowest member is the root, and those with no member above them
+  // hang under it.
+  const std::vector<AgentId> rootless{2, 3, 4, 5, 6, 7};
+  CHECK_FALSE(protocol::PlaceInTree(rootless, 2, 2).parent.has_value());
+  CHECK(protocol::PlaceInTree(rootless, 2, 2).children == std::vector<AgentId>{3, 4, 5});
+  CHECK(*protocol::PlaceInTree(rootless, 7, 2).parent == 3);
+  CHECK(protocol::SubtreeOf(rootless, 2, 2) == rootless);
   // Fan-out 1 is a chain.
   CHECK(protocol::SubtreeOf(ten, 8, 1) == std::vector<AgentId>{8, 9, 10});
   CHECK(protocol::PlaceInTree(ten, 5, 99).parent == AgentId{1});
   CHECK(protocol::SubtreeOf(ten, 11, 3).empty());
+}
+
+TEST_CASE("A lost member moves only its own children", "[protocol][tree]") {
+  // 64 agents, fan-out 8: 1 > 2..9, 2 > 10..17, 3 > 18..25, ...
+  const std::vector<AgentId> all = Range(1, 64);
+  auto parents = [](const std::vector<AgentId>& members) {
+    std::map<AgentId, std::optional<AgentId>> out;
+    for (AgentId id : members) out[id] = protocol::ParentInTree(members, id, 8);
+    return out;
+  };
+  const auto before = parents(all);
+  CHECK(*before.at(10) == 2);
+  CHECK(*before.at(64) == 8);
+  // A relay lost: its 8 children move to its parent, nobody else moves.
+  std::vector<AgentId> without2 = all;
+  without2.erase(std::find(without2.begin(), without2.end(), 2));
+  int moved = 0;
+  for (const auto& [id, parent] : parents(without2)) {
+    if (parent == before.at(id)) continue;
+    ++moved;
+    CHECK(id >= 10);
+    CHECK(id <= 17);
+    CHECK(*parent == 1);
+  }
+  CHECK(moved == 8);
+  // The root lost: the lowest member, 2, is the root, and the other relays hang under it.
+  std::vector<AgentId> without1(all.begin() + 1, all.end());
+  const auto after = parents(without1);
+  CHECK_FALSE(after.at(2).has_value());
+  for (AgentId id = 3; id <= 9; ++id) CHECK(*after.at(id) == 2);
+  for (AgentId id = 10; id <= 64; ++id) CHECK(after.at(id) == before.at(id));
+  // A leaf lost: nobody moves.
+  std::vector<AgentId> without40 = all;
+  without40.erase(std::find(without40.begin(), without40.end(), 40));
+  for (const auto& [id, parent] : parents(without40)) CHECK(parent == before.at(id));
 }
 
 TEST_CASE("The auto fan-out holds every agent within two levels below the root", "[protocol][tree]") {
@@ -179,8 +224,8 @@ TEST_CASE("The auto fan-out holds every agent within two levels below the root",
     const std::vector<AgentId> members = Range(1, n);
     auto depth_of = [&members](AgentId id, int f) {
       int depth = 0;
-      for (auto parent = protocol::PlaceInTree(members, id, f).parent; parent;
-           parent = protocol::PlaceInTree(members, *parent, f).parent) {
+      for (auto parent = protocol::ParentInTree(members, id, f); parent;
+           parent = protocol::ParentInTree(members, *parent, f)) {
         ++depth;
       }
       return depth;
