@@ -98,9 +98,16 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
     SendOutward(Requeue(unsent_up_, &StepState::sent_up, /*skip_from_above=*/true));
   }
   if (new_child) {
-    // A new child has none of what this agent sent down before (the DDS history of the
-    // relay topic gives it as much again; copies are dropped).
-    SendDown(Requeue(unsent_down_, &StepState::sent_down, /*skip_from_above=*/false));
+    // A new child has none of what this agent sent down before the move. The DDS history of
+    // the relay topic (transient local, history_steps samples) gives it what was sent down;
+    // this agent sends again only the newest steps, where its own batches may still be on
+    // the way. All of the kept steps again was up to history_steps samples in one burst to
+    // every child: over shared memory it overran the writer's segment, and a child that
+    // lost one of them took nothing more until the writer's history let it go, 50 steps
+    // later (docs/BENCHMARKS.md, "Losing a relay or the root at 64 agents").
+    const StepIndex recent = static_cast<StepIndex>(config_.network.fusion_window_steps) + 2;
+    SendDown(Requeue(unsent_down_, &StepState::sent_down, /*skip_from_above=*/false,
+                     newest_ > recent ? newest_ - recent : 0));
   }
   // Children changed: steps waiting on a child that left may be ready now.
   FlushDue(now_s);
@@ -272,15 +279,19 @@ std::vector<RelayedContribution> TreeExchange::Drain(std::vector<std::pair<StepI
 }
 
 StepIndex TreeExchange::Requeue(std::vector<std::pair<StepIndex, AgentId>>& queue,
-                               std::set<AgentId> StepState::*sent, bool skip_from_above) {
+                               std::set<AgentId> StepState::*sent, bool skip_from_above, StepIndex from) {
   StepIndex report = 0;
-  queue.clear();
+  // What is queued of older steps stays queued.
+  queue.erase(std::remove_if(queue.begin(), queue.end(),
+                             [from](const std::pair<StepIndex, AgentId>& e) { return e.first >= from; }),
+              queue.end());
   for (auto& [step, s] : steps_) {
+    if (Flushed(step)) report = step;
+    if (step < from) continue;
     (s.*sent).clear();
     for (const auto& entry : s.items) {
       if (!skip_from_above || s.from_above.count(entry.first) == 0) queue.emplace_back(step, entry.first);
     }
-    if (Flushed(step)) report = step;
   }
   return report;
 }

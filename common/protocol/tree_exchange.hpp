@@ -136,10 +136,11 @@ class TreeExchange {
   // The queued items not yet sent that way, marked sent; the queue emptied.
   std::vector<RelayedContribution> Drain(std::vector<std::pair<StepIndex, AgentId>>& queue,
                                          std::set<AgentId> StepState::*sent);
-  // Queues again every kept item (but those that came from above, with skip_from_above) as
-  // not yet sent that way; returns the newest step whose batch was sent.
+  // Queues again every kept item of the steps from `from` on (but those that came from
+  // above, with skip_from_above) as not yet sent that way; returns the newest step whose
+  // batch was sent.
   StepIndex Requeue(std::vector<std::pair<StepIndex, AgentId>>& queue, std::set<AgentId> StepState::*sent,
-                    bool skip_from_above);
+                    bool skip_from_above, StepIndex from = 0);
   void Trim();
 
   const Config& config_;
