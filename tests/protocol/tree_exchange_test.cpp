@@ -413,7 +413,8 @@ TEST_CASE("When a relay is lost its subtree moves to a new parent and what it he
   net.dead.insert(2);
   net.Step(2, Range(1, 13), 2.0);
   for (AgentId a : {1, 3, 4}) CHECK(net.delivered[a][{2, 5}] == 0);
-  // The members without 2: 5 now hangs under 1, and everyone else moves up too.
+  // The members without 2: its children 5, 6 and 7 now hang under its parent, 1; nobody
+  // else moves.
   std::set<AgentId> members;
   for (AgentId a = 1; a <= 13; ++a) {
     if (a != 2) members.insert(a);
@@ -421,14 +422,49 @@ TEST_CASE("When a relay is lost its subtree moves to a new parent and what it he
   net.Tick(2.1);  // the waits for 2 are over
   net.SetMembers(members, 3.0);
   net.Tick(3.1);
-  REQUIRE_FALSE(net.reparents[5].empty());
-  CHECK(net.reparents[5].back() == 1);
+  for (AgentId a : {5, 6, 7}) {
+    REQUIRE(net.reparents[a].size() == 1);
+    CHECK(net.reparents[a].back() == 1);
+  }
+  for (AgentId a : {1, 3, 4, 8, 9, 10, 11, 12, 13}) CHECK(net.reparents[a].empty());
   for (AgentId a : members) {
     for (AgentId j : members) {
       INFO("agent " << a << " of " << j);
       if (a != j) CHECK(net.delivered[a][{2, j}] == 1);
     }
   }
+}
+
+TEST_CASE("A relay with a new child sends again only its newest steps", "[protocol][tree]") {
+  // 15 agents, fan-out 2: 1 > {2, 3}, 2 > {4, 5}, 4 > {8, 9}, 5 > {10, 11}.
+  const deif::Config config = ConfigFor(15, 2);
+  TreeExchange relay(config, TreeExchange::Options{2, kRun, WriterOf(2)});
+  relay.SetMembers(std::set<AgentId>{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15}, 0.0);
+  relay.TakeActions();
+  double t = 1.0;
+  for (StepIndex k = 1; k <= 10; ++k, t += 0.1) {
+    relay.OnRollCall(k, Range(1, 15), t);
+    relay.OnOwn(Contribution(2, k), t);
+    relay.OnBatch(BatchMsg{kRun, 4, k, false, {{WriterOf(4), Contribution(4, k)}}}, t);
+    relay.OnBatch(BatchMsg{kRun, 5, k, false, {{WriterOf(5), Contribution(5, k)}}}, t);
+    relay.OnBatch(BatchMsg{kRun, 1, k, true, {{WriterOf(1), Contribution(1, k)}}}, t);  // sent on down
+    relay.TakeActions();
+  }
+  // 4 is lost: its children 8 and 9 are 2's now. What 2 sent down before reaches them from
+  // the relay topic's history; 2 sends again the newest fusion_window_steps + 2 steps only.
+  relay.SetMembers(std::set<AgentId>{1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15}, t);
+  REQUIRE(relay.place().children == std::vector<AgentId>{5, 8, 9});
+  const StepIndex from = 10 - (config.network.fusion_window_steps + 2);
+  std::set<StepIndex> steps;
+  for (const auto& a : relay.TakeActions()) {
+    if (const auto* s = std::get_if<protocol::tree_action::Send>(&a)) {
+      CHECK(s->batch.down);
+      for (const auto& item : s->batch.items) steps.insert(item.msg.step);
+    }
+  }
+  std::set<StepIndex> expected;
+  for (StepIndex k = from; k <= 10; ++k) expected.insert(k);
+  CHECK(steps == expected);
 }
 
 TEST_CASE("Bad batches and items are refused and never delivered", "[protocol][tree]") {
