@@ -719,6 +719,7 @@ void AgentProtocol::SetRollCall(Record& r, std::vector<AgentId> roll_call) {
       Reject("agent " + std::to_string(it->first), "not_in_roll_call");
       it = r.held.erase(it);
       changed = true;
+      r.merge_base.reset();  // made from what it held
     } else {
       ++it;
     }
@@ -815,6 +816,7 @@ InfoState AgentProtocol::BaseOf(Record& r) {
   // every distinct posterior carried by the step's contributions, folded in ascending id.
   bool merge = false;
   for (const auto& [peer_id, held] : r.held) merge = merge || held.msg.merge_request;
+  if (merge && r.merge_base && r.merge_base_held == r.held.size()) return *r.merge_base;
   if (merge) {
     std::vector<const InfoState*> distinct;
     for (const auto& [peer_id, held] : r.held) {
@@ -834,6 +836,8 @@ InfoState AgentProtocol::BaseOf(Record& r) {
                                " distinct posteriors by covariance intersection (a peer's "
                                "history lost information)");
     }
+    r.merge_base = merged;
+    r.merge_base_held = r.held.size();
     return merged;
   }
   if (r.basis) return *r.basis;

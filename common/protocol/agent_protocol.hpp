@@ -184,6 +184,11 @@ class AgentProtocol {
     bool awaiting_basis = false;     // rejoining: no usable posterior of step-1 yet
     std::optional<InfoState> basis;  // replaces the posterior of step-1 (adoption)
     bool merged = false;
+    // The merge of the held contributions' posteriors (BaseOf), and how many were held when
+    // it was made: held only grows, and every late contribution recomputes the steps after
+    // it, so the covariance intersections are made again only when a contribution came.
+    std::optional<InfoState> merge_base;
+    std::size_t merge_base_held = 0;
     std::map<AgentId, Held> held;    // ascending id
     InfoState prior;                 // y(k|k-1), Y(k|k-1)
     InfoState posterior;             // y(k|k), Y(k|k)
