@@ -16,6 +16,8 @@ namespace deif::agent {
 namespace {
 
 constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
+// Writers kept per parent: its relay writer, and that of each process that restarted as it.
+constexpr std::size_t kMaxParentWriters = 16;
 
 // The last step of the rows a restarted process appends to (0: none, or unreadable).
 StepIndex LastStepWritten(const dds::ProcessContext& context, AgentId id) {
@@ -69,8 +71,12 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
     // Relay partitions (docs/SCALING.md): up.<id> holds the batches of this agent's
     // children, down.<id> its own batches to them; the writer up and the reader down move
     // to the parent's as the tree changes. It starts in the tree of every agent of the run.
+    // A parent that fell silent stays out of this agent's tree for twice the time every
+    // agent's membership takes to lose a dead agent (its writers' lease plus the grace).
+    const double lost_after_s = dds::EffectiveTimings(config_).liveliness_lease_s + config_.network.liveliness_grace_s;
     tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
-                                                            node_.WriterKey(dds::Topic::kContribution)});
+                                                            node_.WriterKey(dds::Topic::kContribution),
+                                                            2.0 * lost_after_s});
     PlaceRelays(tree_->place().parent, /*move=*/false);
     node_.AddWriter(dds::Topic::kRelayUp);
     node_.AddWriter(dds::Topic::kRelayDown);
@@ -283,7 +289,12 @@ void AgentNode::Dispatch(const dds::Event& event, double now_s) {
       }
     }
   } else if (const auto* batch = std::get_if<dds::Received<protocol::BatchMsg>>(&event)) {
-    if (tree_) tree_->OnBatch(batch->msg, now_s);
+    if (!tree_) return;
+    if (batch->msg.down && tree_->place().parent == batch->msg.sender_id &&
+        parent_writers_.size() < kMaxParentWriters) {
+      parent_writers_.emplace(batch->from, batch->msg.sender_id);  // its first batch names it
+    }
+    tree_->OnBatch(batch->msg, now_s);
   } else if (const auto* c = std::get_if<dds::Received<protocol::ContributionMsg>>(&event)) {
     if (!Authorised(c->msg.agent_id, c->from)) {
       protocol_.OnUnauthorised(c->msg.agent_id, c->from);
@@ -298,6 +309,10 @@ void AgentNode::Dispatch(const dds::Event& event, double now_s) {
   } else if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
     if (change->topic == dds::Topic::kContribution || change->topic == dds::Topic::kRange) {
       protocol_.OnWriterLiveliness(change->writer, change->alive, now_s);
+    } else if (change->topic == dds::Topic::kRelayDown && tree_) {
+      if (auto parent = parent_writers_.find(change->writer); parent != parent_writers_.end()) {
+        tree_->OnParentLiveliness(parent->second, change->alive, now_s);
+      }
     }
   }
 }
@@ -338,8 +353,15 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
       deliveries.emplace_back(std::move(deliver->item.msg), deliver->item.origin);  // after the sends
     } else if (const auto* reparent = std::get_if<act::Reparent>(&action)) {
       PlaceRelays(reparent->parent, /*move=*/true);
-      context_.log->info("tree exchange: parent now {} ({} members)", ParentName(reparent->parent),
-                         tree_->members().size());
+      parent_writers_.clear();  // the new parent's first batch names its writer
+      if (reparent->silent) {
+        context_.log->warn("tree exchange: parent now {} ({} members): agent {} fell silent (relay lease {} s)",
+                           ParentName(reparent->parent), tree_->members().size(), *reparent->silent,
+                           EffectiveRelayLeaseS(config_));
+      } else {
+        context_.log->info("tree exchange: parent now {} ({} members)", ParentName(reparent->parent),
+                           tree_->members().size());
+      }
     } else if (const auto* reject = std::get_if<act::Reject>(&action)) {
       protocol_.OnRelayRejected(reject->reason, reject->count);
     }

@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <set>
 #include <string>
@@ -74,6 +75,9 @@ class AgentNode : public dds::Application {
   // The participants' and the protocol's membership versions the tree was last made from.
   std::pair<std::uint64_t, std::uint64_t> tree_version_{~0ull, ~0ull};
   bool tree_live_ = false;  // the run has begun: the tree follows the members
+  // Relay writers to this agent (deif/relay_down) -> the parent whose batches they carried:
+  // their liveliness is the parent's (TreeExchange::OnParentLiveliness).
+  std::map<protocol::SenderKey, AgentId> parent_writers_;
   std::optional<AgentCsv> csv_;
   dds::DeliveryDelays delivery_;  // docs/ARTEFACTS.md, "Delivery delays"
   std::atomic<bool> stop_requested_{false};

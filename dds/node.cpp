@@ -71,6 +71,9 @@ struct TopicQos {
   int reader_depth;
   bool manual_liveliness;   // MANUAL_BY_TOPIC with network.liveliness_lease_s
   bool sized_by_use = false;  // samples allocated as large as they are, not as the type's bound
+  // The lease is network.relay_lease_s (EffectiveRelayLeaseS), not the lease of every agent's
+  // writers: a relay writer has at most tree_fanout readers.
+  bool relay_lease = false;
 };
 
 TopicQos QosOf(Topic topic, const NetworkConfig& network) {
@@ -85,9 +88,12 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
       return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, true};
     case Topic::kAgentState:  // the latest state of every agent, also for a restarted target
       return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, 1, 4, true};
-    case Topic::kRelayUp:    // what a relay's new parent or child missed, up to the history
-    case Topic::kRelayDown:  // (docs/SCALING.md); a batch's bound is 256 contributions
+    case Topic::kRelayUp:  // what a relay's new parent missed, up to the history (docs/SCALING.md);
+                           // a batch's bound is 256 contributions
       return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, false, true};
+    case Topic::kRelayDown:  // what a new child missed; its liveliness tells the children that
+                             // their parent fell silent (docs/SCALING.md, "Losing a relay")
+      return {fdds::TRANSIENT_LOCAL_DURABILITY_QOS, history, history, true, true, true};
   }
   return {fdds::VOLATILE_DURABILITY_QOS, 1, 1, false};
 }
@@ -134,6 +140,26 @@ Timings EffectiveTimings(const Config& config) {
   return t;
 }
 
+namespace {
+
+Clock::duration Seconds(double s) {
+  return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
+}
+
+// A MANUAL_BY_TOPIC writer's lease, and how long it may stay idle before it asserts.
+double LeaseOf(const TopicQos& spec, const Config& config) {
+  return spec.relay_lease ? EffectiveRelayLeaseS(config) : EffectiveTimings(config).liveliness_lease_s;
+}
+double AssertPeriodOf(const TopicQos& spec, const Config& config) {
+  if (spec.relay_lease) {
+    return EffectiveRelayLeaseS(config) / std::max(1, config.network.liveliness_assertions_per_lease);
+  }
+  const Timings t = EffectiveTimings(config);
+  return t.liveliness_lease_s / t.assertions_per_lease;
+}
+
+}  // namespace
+
 double DiscoveryPatienceS(const Config& config, int restarts_in_place) {
   const double base = std::max(5.0, 4.0 * EffectiveTimings(config).participant_announcement_s);
   return base * static_cast<double>(1 << std::clamp(restarts_in_place, 0, 8));
@@ -157,10 +183,8 @@ void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config
   if (spec.manual_liveliness) {
     // AUTOMATIC liveliness does not detect a killed writer in Fast DDS 2.9.1.
     qos.liveliness().kind = fdds::MANUAL_BY_TOPIC_LIVELINESS_QOS;
-    const Timings t = EffectiveTimings(config);
-    qos.liveliness().lease_duration = DdsDuration(t.liveliness_lease_s);
-    qos.liveliness().announcement_period =
-        DdsDuration(t.liveliness_lease_s / t.assertions_per_lease);
+    qos.liveliness().lease_duration = DdsDuration(LeaseOf(spec, config));
+    qos.liveliness().announcement_period = DdsDuration(AssertPeriodOf(spec, config));
   }
   qos.data_sharing().off();
   if (spec.sized_by_use) {
@@ -635,6 +659,10 @@ class MatchListener : public fdds::DataWriterListener {
     }
     wake_();  // the application may be waiting for a match
   }
+  bool AnyReader() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return !readers_.empty();
+  }
   std::set<protocol::SenderKey> Readers() const {
     std::lock_guard<std::mutex> lock(mutex_);
     return readers_;
@@ -719,7 +747,14 @@ struct Node::Impl {
   std::condition_variable assert_cv;
   bool assert_stop = false;
   std::map<fdds::DataWriter*, Clock::time_point> last_write;  // guarded by assert_mutex
-  std::vector<fdds::DataWriter*> asserted;  // MANUAL_BY_TOPIC writers; guarded by assert_mutex
+  // MANUAL_BY_TOPIC writers, how long each may stay idle, and its own listener of matches
+  // (nullptr: shared by several writers); guarded by assert_mutex.
+  struct Asserted {
+    fdds::DataWriter* writer;
+    Clock::duration period;
+    const MatchListener* matches;
+  };
+  std::vector<Asserted> asserted;
   std::thread asserter;
 
   explicit Impl(const Config& c) : config(c) {}
@@ -872,7 +907,9 @@ fdds::DataWriter* RangeWriterFor(Node::Impl& d, AgentId id) {
     // A new writer asserts like the others (StartLiveliness), from its first period on.
     std::lock_guard<std::mutex> lock(d.assert_mutex);
     d.last_write[writer] = Clock::now();
-    if (d.asserter.joinable()) d.asserted.push_back(writer);  // else StartLiveliness adds it
+    if (d.asserter.joinable()) {  // else StartLiveliness adds it
+      d.asserted.push_back({writer, Seconds(AssertPeriodOf(QosOf(Topic::kRange, d.config.network), d.config)), nullptr});
+    }
   }
   return writer;
 }
@@ -1041,24 +1078,35 @@ void Node::RemoveReader(Topic topic) {
 void Node::StartLiveliness() {
   Impl& d = *impl_;
   if (d.asserter.joinable()) return;
-  const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(
-      EffectiveTimings(d.config).liveliness_lease_s / EffectiveTimings(d.config).assertions_per_lease));
   {
     std::lock_guard<std::mutex> lock(d.assert_mutex);
     for (auto& [topic, writer] : d.every_writer) {
-      if (QosOf(topic, d.config.network).manual_liveliness) d.asserted.push_back(writer);
+      const TopicQos spec = QosOf(topic, d.config.network);
+      if (!spec.manual_liveliness) continue;
+      // A topic's listener is this writer's alone but for the target's writers of ranges.
+      const auto listener = d.writer_listeners.find(topic);
+      const MatchListener* matches =
+          topic != Topic::kRange && listener != d.writer_listeners.end() ? listener->second.get() : nullptr;
+      d.asserted.push_back({writer, Seconds(AssertPeriodOf(spec, d.config)), matches});
     }
-    for (fdds::DataWriter* writer : d.asserted) d.last_write[writer] = Clock::now() - period;
-    // A write renews a writer's liveliness, so only writers idle for a period assert: in a
-    // busy network every assertion is a message to every matched reader.
-    d.asserter = std::thread([&d, period] {
+    for (const Impl::Asserted& a : d.asserted) d.last_write[a.writer] = Clock::now() - a.period;
+    // A write renews a writer's liveliness, so only writers idle for their period assert: in
+    // a busy network every assertion is a message to every matched reader. A writer that no
+    // reader matches (a leaf's relay writer) has nobody to tell.
+    d.asserter = std::thread([&d] {
       std::unique_lock<std::mutex> held(d.assert_mutex);
       while (!d.assert_stop) {
         const auto now = Clock::now();
-        for (fdds::DataWriter* writer : d.asserted) {
-          if (now - d.last_write[writer] >= period) writer->assert_liveliness();
+        auto next = now + std::chrono::seconds(1);
+        for (const Impl::Asserted& a : d.asserted) {
+          auto& renewed = d.last_write[a.writer];
+          if (now - renewed >= a.period) {
+            if (a.matches == nullptr || a.matches->AnyReader()) a.writer->assert_liveliness();
+            renewed = now;
+          }
+          next = std::min(next, renewed + a.period);
         }
-        d.assert_cv.wait_for(held, period, [&d] { return d.assert_stop; });
+        d.assert_cv.wait_until(held, next, [&d] { return d.assert_stop; });
       }
     });
   }

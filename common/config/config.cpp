@@ -895,6 +895,10 @@ ExchangeKind EffectiveExchange(const Config& config) {
   return plain && config.agents.count >= kTreeFromAgents ? ExchangeKind::kTree : ExchangeKind::kAllToAll;
 }
 
+double EffectiveRelayLeaseS(const Config& config) {
+  return config.network.relay_lease_s > 0.0 ? config.network.relay_lease_s : config.network.liveliness_lease_s;
+}
+
 int EffectiveTreeFanout(const Config& config) {
   if (config.network.tree_fanout > 0) return config.network.tree_fanout;
   const long n = std::max(1, config.agents.count);

@@ -103,6 +103,7 @@ struct NetworkConfig {
   ExchangeKind exchange = ExchangeKind::kAuto;
   int tree_fanout = 0;               // exchange: tree: children per relay; 0: auto
   double relay_wait_s = 0.02;        // exchange: tree: a relay's longest wait for its children
+  double relay_lease_s = 0.0;        // exchange: tree: a parent's relay writer's lease; 0: liveliness_lease_s
   TransportKind transport = TransportKind::kShm;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
   std::string discovery_server = "127.0.0.1:11811";  // host:port, with discovery: server
@@ -167,6 +168,10 @@ ExchangeKind EffectiveExchange(const Config& config);
 // config, so every agent builds the same tree.
 inline constexpr int kMinAutoFanout = 4;
 int EffectiveTreeFanout(const Config& config);
+// The liveliness lease of a relay's writer to its children (network.relay_lease_s; 0: the
+// configured network.liveliness_lease_s, which a relay writer, with at most tree_fanout
+// readers, keeps at every N, docs/SCALING.md "Losing a relay").
+double EffectiveRelayLeaseS(const Config& config);
 
 // The struct defaults above equal the schema's (a unit test checks it); ParseConfig starts
 // from the schema's.

@@ -606,6 +606,18 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "and is fused late. Keep it well within the period. In lockstep a relay waits "
            "at least a quarter of step_timeout_s, and gathers what comes later for half "
            "that wait.");
+  t.Add("relay_lease_s", [](Config& c) -> auto& { return c.network.relay_lease_s; })
+      .Default(0.0)
+      .AtLeast(0.0)
+      .AtMost(kMaxSeconds)
+      .Unit("s")
+      .Doc("exchange: tree: MANUAL_BY_TOPIC liveliness lease of a relay's writer to its "
+           "children. A child whose parent stays silent this long plus liveliness_grace_s "
+           "takes it for lost and moves under the next member up at once, before the "
+           "members agree it is gone (which takes the longer lease of every agent's "
+           "writers at large N: 2.08 s at 64 agents). A relay writer has at most "
+           "tree_fanout readers, so this lease need not grow with N. 0: liveliness_lease_s "
+           "(docs/SCALING.md, \"Losing a relay\").");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
       .Default(TransportKind::kShm)
       .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "

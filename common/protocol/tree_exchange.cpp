@@ -73,12 +73,56 @@ TreeExchange::TreeExchange(const Config& config, Options options)
       keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)) {
   for (AgentId id = 1; id <= static_cast<AgentId>(config.agents.count); ++id) members_.insert(id);
   members_.insert(options_.self);
+  given_ = members_;
   sorted_.assign(members_.begin(), members_.end());
   place_ = PlaceInTree(sorted_, options_.self, fanout_);
   for (AgentId child : place_.children) child_subtrees_.push_back(SubtreeOf(sorted_, child, fanout_));
 }
 
 void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
+  members.insert(options_.self);
+  given_ = std::move(members);
+  // A silent parent the members lost is gone: nothing left to hold it out of.
+  for (auto it = silent_.begin(); it != silent_.end();) {
+    it = given_.count(it->first) > 0 ? std::next(it) : silent_.erase(it);
+  }
+  Rebuild(now_s);
+}
+
+void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
+  if (alive) {
+    if (parent_lapse_ && parent_lapse_->first == id) parent_lapse_.reset();  // back within the grace
+    return;
+  }
+  if (place_.parent != id || (parent_lapse_ && parent_lapse_->first == id)) return;
+  parent_lapse_.emplace(id, now_s + config_.network.liveliness_grace_s);
+  CheckSilence(now_s);
+}
+
+void TreeExchange::CheckSilence(double now_s) {
+  if (parent_lapse_ && now_s >= parent_lapse_->second) {
+    const AgentId id = parent_lapse_->first;
+    parent_lapse_.reset();
+    if (place_.parent == id) {  // still its parent, and silent since the lapse
+      silent_[id] = now_s + options_.silent_hold_s;
+      Rebuild(now_s, id);
+    }
+  }
+  bool back = false;
+  for (auto it = silent_.begin(); it != silent_.end();) {
+    if (now_s >= it->second) {
+      it = silent_.erase(it);
+      back = true;
+    } else {
+      ++it;
+    }
+  }
+  if (back) Rebuild(now_s);
+}
+
+void TreeExchange::Rebuild(double now_s, std::optional<AgentId> silent) {
+  std::set<AgentId> members = given_;
+  for (const auto& entry : silent_) members.erase(entry.first);
   members.insert(options_.self);
   if (members == members_) return;
   members_ = std::move(members);
@@ -92,7 +136,7 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
     return std::find(old.children.begin(), old.children.end(), c) == old.children.end();
   });
   if (place_.parent != old_parent) {
-    actions_.push_back(tree_action::Reparent{place_.parent});
+    actions_.push_back(tree_action::Reparent{place_.parent, silent});
     // The new parent gets all this agent holds of the kept steps: the old one may have
     // died with it. A new root sends down what it holds and had only sent up.
     SendOutward(Requeue(unsent_up_, &StepState::sent_up, /*skip_from_above=*/true));
@@ -320,6 +364,7 @@ void TreeExchange::FlushDue(double now_s) {
 }
 
 void TreeExchange::OnTimer(double now_s) {
+  CheckSilence(now_s);
   FlushDue(now_s);
   // What arrived for steps whose batch is gone goes on soon: in lock-step gathered for
   // half a wait (one late sample, not one per late child), in real time at once.
@@ -345,9 +390,13 @@ void TreeExchange::OnTimer(double now_s) {
 std::optional<double> TreeExchange::NextDeadline() const {
   std::optional<double> next;
   if (late_since_) next = *late_since_ + late_gather_s_;
+  const auto sooner = [&next](double t) {
+    if (!next || t < *next) next = t;
+  };
+  if (parent_lapse_) sooner(parent_lapse_->second);
+  for (const auto& entry : silent_) sooner(entry.second);
   for (StepIndex step : unflushed_) {  // each kept, with first_s set (StateOf)
-    const double due = steps_.at(step).first_s + wait_s_;
-    if (!next || due < *next) next = due;
+    sooner(steps_.at(step).first_s + wait_s_);
   }
   return next;
 }

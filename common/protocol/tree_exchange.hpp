@@ -63,6 +63,7 @@ struct Deliver {  // a peer's contribution for the step protocol
 };
 struct Reparent {  // this agent's parent is now `parent` (nullopt: it is the root)
   std::optional<AgentId> parent;
+  std::optional<AgentId> silent;  // the parent it left because it fell silent (OnParentLiveliness)
 };
 struct Reject {  // an invalid batch or item, counted like any rejected message
   std::string reason;
@@ -79,6 +80,10 @@ class TreeExchange {
     AgentId self = 1;
     RunToken run = 1;
     SenderKey own_writer{};  // this agent's writer of deif/contribution
+    // How long a parent that fell silent stays out of this agent's tree: at least until the
+    // members would have lost it (the lease of every agent's writers plus the grace), so
+    // that a parent that only stalled comes back into the tree then, and a dead one is gone.
+    double silent_hold_s = 5.0;
   };
   // The config must outlive the exchange (network.tree_fanout, relay_wait_s, history_steps,
   // fusion_window_steps, agents.count). Starts in the tree of every agent of the run
@@ -89,6 +94,12 @@ class TreeExchange {
   // The members the tree is made of (this agent is added); a change may move this agent to
   // another parent (a Reparent action, then what it holds is sent to the new one).
   void SetMembers(std::set<AgentId> members, double now_s);
+  // The liveliness of agent `id`'s relay writer to its children (network.relay_lease_s)
+  // changed. When the parent's lapses and it stays silent for network.liveliness_grace_s
+  // more, this agent moves under the next member up at once and leaves the parent out of its
+  // tree for silent_hold_s: every agent's membership loses a dead agent only after the
+  // lease of every agent's writers, which grows with N (docs/SCALING.md, "Losing a relay").
+  void OnParentLiveliness(AgentId id, bool alive, double now_s);
   // The target's roll call of `step`: which subtrees have a contribution to wait for.
   void OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s);
   // This agent's own contribution.
@@ -118,6 +129,9 @@ class TreeExchange {
   };
 
   bool Root() const { return !place_.parent.has_value(); }
+  // The tree of the members less the silent parents; moves this agent if its place changed.
+  void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
+  void CheckSilence(double now_s);
   // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
   StepState* StateOf(StepIndex step, double now_s);
   // Stores a new item (false: a duplicate, or not storable) and queues it to be sent down,
@@ -150,7 +164,10 @@ class TreeExchange {
   const double late_gather_s_;
   const StepIndex keep_;  // steps kept behind (and ahead of) the newest roll call
 
-  std::set<AgentId> members_;
+  std::set<AgentId> given_;    // the members as last set (SetMembers)
+  std::set<AgentId> members_;  // those of the tree: given_ less the silent parents
+  std::map<AgentId, double> silent_;  // a parent that fell silent -> when it may come back
+  std::optional<std::pair<AgentId, double>> parent_lapse_;  // the parent's lapse, due then
   std::vector<AgentId> sorted_;
   TreePlace place_;
   std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children

@@ -762,6 +762,29 @@ def test_tree_relay_killed(work, domain):
         assert relay_log_lines(res.out_dir, j) == [], relay_log_lines(res.out_dir, j)
 
 
+def test_tree_silent_relay_left_at_once(work, domain):
+    """N=7 over the tree in real time (10 Hz), with the lease of every agent's writers long
+    (3 s, as the liveliness budget makes it at large N: 2.08 s at 64 agents) and the relay
+    writer's short (0.4 s): relay 2 killed at step 40. Its children 4 and 5 take it for lost
+    once its relay writer has been silent for the relay lease plus the grace, and move under
+    1 long before the members lose it: within 10 steps of the kill (1 s, against the 32
+    steps of the lease) they fuse the contributions of every live agent again."""
+    faults = [launcher.Fault(40, "kill", 2)]
+    res = launch(work, domain, agents=7, steps=120, faults=faults,
+                 overrides=TREE + ["scenario.mode=realtime", "scenario.period_s=0.1",
+                                   "network.liveliness_lease_s=3.0", "network.relay_lease_s=0.4"])
+    assert res.ok, res.why_not_ok()
+    for j in (4, 5):
+        moves = relay_log_lines(res.out_dir, j)
+        assert len(moves) == 1 and "parent now agent 1" in moves[0] and "agent 2 fell silent" in moves[0], moves
+        by_step = {int(r["step"]): r for r in rows(res.out_dir, j)}
+        # Every live agent's contribution (1, 3, 4, 5, 6 and 7) at every step from 50 on.
+        short = [k for k in range(50, 121) if int(by_step[k]["fused"]) < 6]
+        assert short == [], f"agent {j}: steps without every live agent's contribution: {short}"
+    for j in (1, 3, 6, 7):
+        assert relay_log_lines(res.out_dir, j) == [], relay_log_lines(res.out_dir, j)
+
+
 def test_tree_frozen_relay(work, domain):
     """N=7 over the tree in real time (10 Hz): relay 2 frozen (SIGSTOP) for 3 s from step 40.
     Its subtree and the rest go on without it; once it resumes, every contribution it and

@@ -94,7 +94,11 @@ struct Network {
             (send->batch.down ? down_samples : up_samples) += 1;
             std::vector<AgentId> to;
             if (send->batch.down) {
-              to = agent->place().children;
+              // To whoever has the sender for its parent (a child reads its parent's relay
+              // writer), which the sender may not yet count among its children.
+              for (auto& [r, other] : agents) {
+                if (other->place().parent == id) to.push_back(r);
+              }
             } else if (agent->place().parent) {
               to = {*agent->place().parent};
             }
@@ -106,6 +110,7 @@ struct Network {
             CHECK(deliver->item.origin == WriterOf(deliver->item.msg.agent_id));
           } else if (auto* reparent = std::get_if<protocol::tree_action::Reparent>(&action)) {
             reparents[id].push_back(reparent->parent.value_or(0));
+            silent[id].push_back(reparent->silent.value_or(0));
           } else if (auto* reject = std::get_if<protocol::tree_action::Reject>(&action)) {
             rejects[id].push_back(reject->reason);
           }
@@ -135,6 +140,7 @@ struct Network {
   std::vector<std::pair<AgentId, BatchMsg>> inbox;
   std::map<AgentId, std::map<std::pair<StepIndex, AgentId>, int>> delivered;
   std::map<AgentId, std::vector<AgentId>> reparents;  // 0: became the root
+  std::map<AgentId, std::vector<AgentId>> silent;     // with each move: the parent left silent, or 0
   std::map<AgentId, std::vector<std::string>> rejects;
   int up_samples = 0, down_samples = 0;
 };
@@ -433,6 +439,108 @@ TEST_CASE("When a relay is lost its subtree moves to a new parent and what it he
       if (a != j) CHECK(net.delivered[a][{2, j}] == 1);
     }
   }
+}
+
+TEST_CASE("Children whose parent falls silent move up after the grace, before the members lose it",
+          "[protocol][tree]") {
+  // 13 agents, fan-out 3: 1 > {2, 3, 4}, 2 > {5, 6, 7}. Every agent's membership loses a dead
+  // agent only after the lease of all writers (2.08 s at 64 agents); the relay writer's lease
+  // is short (network.relay_lease_s): its children move at once.
+  const deif::Config config = ConfigFor(13, 3);
+  const double grace = config.network.liveliness_grace_s;
+  Network net(config, Range(1, 13));
+  net.Step(1, Range(1, 13), 1.0);
+  net.dead.insert(2);
+  for (AgentId c : {5, 6, 7}) net.agents.at(c)->OnParentLiveliness(2, false, 2.0);
+  net.Tick(2.0 + 0.5 * grace);  // within the grace: a stalled parent, maybe
+  for (AgentId c : {5, 6, 7}) CHECK(net.reparents[c].empty());
+  net.Tick(2.0 + grace);
+  for (AgentId c : {5, 6, 7}) {
+    REQUIRE(net.reparents[c] == std::vector<AgentId>{1});
+    CHECK(net.silent[c] == std::vector<AgentId>{2});
+    CHECK(net.agents.at(c)->members().count(2) == 0);
+  }
+  for (AgentId a : {1, 3, 4, 8, 9, 10, 11, 12, 13}) CHECK(net.reparents[a].empty());
+  // The next step, the roll call still with 2 (the target has not lost it either): every
+  // live agent has every other live agent's contribution, 5, 6 and 7 included.
+  net.Step(3, Range(1, 13), 2.5);
+  net.Tick(2.6);
+  for (AgentId a = 1; a <= 13; ++a) {
+    for (AgentId j = 1; j <= 13; ++j) {
+      if (a == 2 || j == 2 || a == j) continue;
+      INFO("agent " << a << " of " << j);
+      CHECK(net.delivered[a][{3, j}] == 1);
+    }
+  }
+  // The members lose 2 later: the tree is the one the children already hang in.
+  std::set<AgentId> members;
+  for (AgentId a = 1; a <= 13; ++a) {
+    if (a != 2) members.insert(a);
+  }
+  net.SetMembers(members, 4.5);
+  net.Tick(20.0);  // long after the hold
+  for (AgentId c : {5, 6, 7}) CHECK(net.reparents[c] == std::vector<AgentId>{1});
+}
+
+TEST_CASE("The root's children make the lowest of them the root when the root falls silent",
+          "[protocol][tree]") {
+  // 7 agents, fan-out 2: 1 > {2, 3}, 2 > {4, 5}, 3 > {6, 7}.
+  const deif::Config config = ConfigFor(7, 2);
+  Network net(config, Range(1, 7));
+  net.Step(1, Range(1, 7), 1.0);
+  net.dead.insert(1);
+  for (AgentId c : {2, 3}) net.agents.at(c)->OnParentLiveliness(1, false, 2.0);
+  net.Tick(3.0);
+  CHECK(net.reparents[2] == std::vector<AgentId>{0});  // the root now
+  CHECK(net.reparents[3] == std::vector<AgentId>{2});
+  for (AgentId a : {4, 5, 6, 7}) CHECK(net.reparents[a].empty());
+  net.Step(2, Range(1, 7), 3.5);
+  net.Tick(3.6);
+  for (AgentId a = 2; a <= 7; ++a) {
+    for (AgentId j = 2; j <= 7; ++j) {
+      INFO("agent " << a << " of " << j);
+      if (a != j) CHECK(net.delivered[a][{2, j}] == 1);
+    }
+  }
+}
+
+TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; a silent parent "
+          "that lives comes back after the hold",
+          "[protocol][tree]") {
+  const deif::Config config = ConfigFor(13, 3);
+  const double grace = config.network.liveliness_grace_s;
+  TreeExchange child(config, TreeExchange::Options{5, kRun, WriterOf(5), /*silent_hold_s=*/1.0});
+  child.SetMembers(std::set<AgentId>{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13}, 0.0);
+  child.TakeActions();
+  REQUIRE(child.place().parent == AgentId{2});
+  const auto moves = [&child] {
+    std::vector<std::pair<AgentId, AgentId>> out;  // (new parent or 0, silent parent or 0)
+    for (const auto& a : child.TakeActions()) {
+      if (const auto* r = std::get_if<protocol::tree_action::Reparent>(&a)) {
+        out.emplace_back(r->parent.value_or(0), r->silent.value_or(0));
+      }
+    }
+    return out;
+  };
+  child.OnParentLiveliness(2, false, 1.0);
+  child.OnParentLiveliness(2, true, 1.0 + 0.5 * grace);  // back within the grace
+  child.OnTimer(1.0 + 2.0 * grace);
+  CHECK(moves().empty());
+  child.OnParentLiveliness(3, false, 2.0);  // not its parent
+  child.OnTimer(2.0 + 2.0 * grace);
+  CHECK(moves().empty());
+  // Silent past the grace: under 1 until the hold is over, then back under 2, which the
+  // members never lost (a parent that stalled, not one that died).
+  child.OnParentLiveliness(2, false, 3.0);
+  REQUIRE(child.NextDeadline().has_value());
+  CHECK(*child.NextDeadline() <= 3.0 + grace);
+  child.OnTimer(3.0 + grace);
+  CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{1, 2}});
+  child.OnTimer(3.0 + grace + 0.5);
+  CHECK(moves().empty());
+  child.OnTimer(3.0 + grace + 1.0);
+  CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{2, 0}});
+  CHECK(child.place().parent == AgentId{2});
 }
 
 TEST_CASE("A relay with a new child sends again only its newest steps", "[protocol][tree]") {
