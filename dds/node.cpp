@@ -1093,18 +1093,28 @@ void Node::StartLiveliness() {
     // A write renews a writer's liveliness, so only writers idle for their period assert: in
     // a busy network every assertion is a message to every matched reader. A writer that no
     // reader matches (a leaf's relay writer) has nobody to tell.
+    // The assertions are sent without the lock: a write (WriteSample) takes it too, and a
+    // send can block for a while (a dead process's shared-memory port, docs/FASTDDS_NOTES.md).
+    // Writers live until the thread is joined.
     d.asserter = std::thread([&d] {
+      std::vector<fdds::DataWriter*> due;
       std::unique_lock<std::mutex> held(d.assert_mutex);
       while (!d.assert_stop) {
         const auto now = Clock::now();
         auto next = now + std::chrono::seconds(1);
+        due.clear();
         for (const Impl::Asserted& a : d.asserted) {
           auto& renewed = d.last_write[a.writer];
           if (now - renewed >= a.period) {
-            if (a.matches == nullptr || a.matches->AnyReader()) a.writer->assert_liveliness();
+            if (a.matches == nullptr || a.matches->AnyReader()) due.push_back(a.writer);
             renewed = now;
           }
           next = std::min(next, renewed + a.period);
+        }
+        if (!due.empty()) {
+          held.unlock();
+          for (fdds::DataWriter* writer : due) writer->assert_liveliness();
+          held.lock();
         }
         d.assert_cv.wait_until(held, next, [&d] { return d.assert_stop; });
       }
