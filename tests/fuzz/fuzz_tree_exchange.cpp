@@ -97,6 +97,10 @@ void Check(const std::vector<protocol::TreeAction>& actions, const protocol::Tre
       if (deliver->item.msg.agent_id == self && deliver->item.origin == WriterOf(self)) {
         Violation("delivered its own contribution back to itself");
       }
+    } else if (const auto* move = std::get_if<protocol::tree_action::Reparent>(&action)) {
+      if (move->silent && (move->parent == move->silent || *move->silent == self)) {
+        Violation("moved under the parent it left as silent, or took itself for silent");
+      }
     } else if (const auto* send = std::get_if<protocol::tree_action::Send>(&action)) {
       const protocol::BatchMsg& b = send->batch;
       if (b.run != kRun || b.sender_id != self) Violation("sent a batch that is not its own");
@@ -121,7 +125,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   double now = 0.0;
   StepIndex step = 1;
   while (!in.empty()) {
-    switch (in.Byte() % 7) {
+    switch (in.Byte() % 8) {
       case 0: {  // a batch from anyone
         protocol::BatchMsg batch;
         batch.run = in.Bool() ? kRun : in.U64();
@@ -164,6 +168,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       case 5:  // the next step (within the run, as the step protocol's own are)
         step = 1 + (step + in.Byte() % 3) % config.scenario.steps;
         break;
+      case 6: {  // a relay writer's liveliness: mostly the parent's, else anyone's
+        const AgentId id = in.Bool() && relay.place().parent ? *relay.place().parent : in.SmallInt();
+        relay.OnParentLiveliness(id, in.Bool(), now);
+        break;
+      }
       default:  // up to its next deadline
         if (const auto due = relay.NextDeadline()) {
           if (!(*due >= now - 1e-9)) Violation("a deadline that is not a time");
