@@ -146,13 +146,18 @@ Clock::duration Seconds(double s) {
   return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
 }
 
+// Renewals per lease of a relay writer, at most: it writes every step, and with
+// network.liveliness_assertions_per_lease (8) it also asserted between the writes of a 10 Hz
+// run, a message to each child every period.
+constexpr int kRelayRenewals = 3;
+
 // A MANUAL_BY_TOPIC writer's lease, and how long it may stay idle before it asserts.
 double LeaseOf(const TopicQos& spec, const Config& config) {
   return spec.relay_lease ? EffectiveRelayLeaseS(config) : EffectiveTimings(config).liveliness_lease_s;
 }
 double AssertPeriodOf(const TopicQos& spec, const Config& config) {
   if (spec.relay_lease) {
-    return EffectiveRelayLeaseS(config) / std::max(1, config.network.liveliness_assertions_per_lease);
+    return LeaseOf(spec, config) / std::clamp(config.network.liveliness_assertions_per_lease, 1, kRelayRenewals);
   }
   const Timings t = EffectiveTimings(config);
   return t.liveliness_lease_s / t.assertions_per_lease;

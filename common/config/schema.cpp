@@ -616,8 +616,9 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "takes it for lost and moves under the next member up at once, before the "
            "members agree it is gone (which takes the longer lease of every agent's "
            "writers at large N: 2.08 s at 64 agents). A relay writer has at most "
-           "tree_fanout readers, so this lease need not grow with N. 0: liveliness_lease_s "
-           "(docs/SCALING.md, \"Losing a relay\").");
+           "tree_fanout readers, so this lease need not grow with N. An idle relay writer "
+           "renews it up to 3 times a lease (at most liveliness_assertions_per_lease). 0: "
+           "liveliness_lease_s (docs/SCALING.md, \"Losing a relay\").");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
       .Default(TransportKind::kShm)
       .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "
