@@ -72,12 +72,11 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
     // children, down.<id> its own batches to them; the writer up and the reader down move
     // to the parent's as the tree changes. It starts in the tree of every agent of the run.
     // A parent that fell silent stays out of this agent's tree for twice the time every
-    // agent's membership takes to lose a dead agent (its writers' lease plus the grace); a
-    // member that comes back joins it after that time (it hears its peers again by then).
+    // agent's membership takes to lose a dead agent (its writers' lease plus the grace).
     const double lost_after_s = dds::EffectiveTimings(config_).liveliness_lease_s + config_.network.liveliness_grace_s;
     tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
                                                             node_.WriterKey(dds::Topic::kContribution),
-                                                            2.0 * lost_after_s, lost_after_s});
+                                                            2.0 * lost_after_s});
     PlaceRelays(tree_->place().parent, /*move=*/false);
     node_.AddWriter(dds::Topic::kRelayUp);
     node_.AddWriter(dds::Topic::kRelayDown);
@@ -159,12 +158,6 @@ int AgentNode::Run() {
     }
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
-    if (tree_ && last_loop_s_ >= 0.0 && now_s - last_loop_s_ > AwayAfterS()) {
-      // This process was frozen or starved: the peers it lost meanwhile come back, and are
-      // not members that were away themselves (TreeExchange::OnAway).
-      tree_->OnAway(now_s);
-    }
-    last_loop_s_ = now_s;
     // From the first step on: before it, what arrives comes from the DDS histories of
     // writers just matched, and its delay is the wait for the start (docs/ARTEFACTS.md).
     if (protocol_.last_written_step() >= 1) delivery_.Record(events);
@@ -399,12 +392,6 @@ void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
     node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
     node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);
   }
-}
-
-double AgentNode::AwayAfterS() const {
-  // A loop that wakes at least every kMaxWaitS and was away longer than a lease of its peers'
-  // writers (which then lapse in its view).
-  return std::max(2.0 * kMaxWaitS, dds::EffectiveTimings(config_).liveliness_lease_s);
 }
 
 std::string AgentNode::ParentName(std::optional<AgentId> parent) {

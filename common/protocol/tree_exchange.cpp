@@ -81,26 +81,11 @@ TreeExchange::TreeExchange(const Config& config, Options options)
 
 void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
   members.insert(options_.self);
-  if (options_.settle_s > 0.0 && now_s >= away_until_) {
-    for (AgentId id : members) {
-      if (given_.count(id) == 0) settling_[id] = now_s + options_.settle_s;  // came back
-    }
-  }
   given_ = std::move(members);
-  // A silent parent, or a member settling, that the members lost is gone: nothing left to
-  // hold it out of.
-  for (auto* held : {&silent_, &settling_}) {
-    for (auto it = held->begin(); it != held->end();) {
-      it = given_.count(it->first) > 0 ? std::next(it) : held->erase(it);
-    }
+  // A silent parent the members lost is gone: nothing left to hold it out of.
+  for (auto it = silent_.begin(); it != silent_.end();) {
+    it = given_.count(it->first) > 0 ? std::next(it) : silent_.erase(it);
   }
-  Rebuild(now_s);
-}
-
-void TreeExchange::OnAway(double now_s) {
-  away_until_ = now_s + options_.settle_s;
-  if (settling_.empty()) return;
-  settling_.clear();
   Rebuild(now_s);
 }
 
@@ -124,14 +109,12 @@ void TreeExchange::CheckSilence(double now_s) {
     }
   }
   bool back = false;
-  for (auto* held : {&silent_, &settling_}) {
-    for (auto it = held->begin(); it != held->end();) {
-      if (now_s >= it->second) {
-        it = held->erase(it);
-        back = true;
-      } else {
-        ++it;
-      }
+  for (auto it = silent_.begin(); it != silent_.end();) {
+    if (now_s >= it->second) {
+      it = silent_.erase(it);
+      back = true;
+    } else {
+      ++it;
     }
   }
   if (back) Rebuild(now_s);
@@ -140,7 +123,6 @@ void TreeExchange::CheckSilence(double now_s) {
 void TreeExchange::Rebuild(double now_s, std::optional<AgentId> silent) {
   std::set<AgentId> members = given_;
   for (const auto& entry : silent_) members.erase(entry.first);
-  for (const auto& entry : settling_) members.erase(entry.first);
   members.insert(options_.self);
   if (members == members_) return;
   members_ = std::move(members);
@@ -413,7 +395,6 @@ std::optional<double> TreeExchange::NextDeadline() const {
   };
   if (parent_lapse_) sooner(parent_lapse_->second);
   for (const auto& entry : silent_) sooner(entry.second);
-  for (const auto& entry : settling_) sooner(entry.second);
   for (StepIndex step : unflushed_) {  // each kept, with first_s set (StateOf)
     sooner(steps_.at(step).first_s + wait_s_);
   }

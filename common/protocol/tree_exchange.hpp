@@ -84,10 +84,6 @@ class TreeExchange {
     // members would have lost it (the lease of every agent's writers plus the grace), so
     // that a parent that only stalled comes back into the tree then, and a dead one is gone.
     double silent_hold_s = 5.0;
-    // A member that comes back into the members joins this agent's tree only after this
-    // long: a process that was frozen or starved hears its peers again only after a while,
-    // and children that moved back under it at once were cut off meanwhile (docs/SCALING.md).
-    double settle_s = 0.0;
   };
   // The config must outlive the exchange (network.tree_fanout, relay_wait_s, history_steps,
   // fusion_window_steps, agents.count). Starts in the tree of every agent of the run
@@ -104,9 +100,6 @@ class TreeExchange {
   // tree for silent_hold_s: every agent's membership loses a dead agent only after the
   // lease of every agent's writers, which grows with N (docs/SCALING.md, "Losing a relay").
   void OnParentLiveliness(AgentId id, bool alive, double now_s);
-  // This agent itself was away (frozen or starved) until now: the members that come back in
-  // the next settle_s are the ones it lost, not ones that were away; they join at once.
-  void OnAway(double now_s);
   // The target's roll call of `step`: which subtrees have a contribution to wait for.
   void OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s);
   // This agent's own contribution.
@@ -136,8 +129,7 @@ class TreeExchange {
   };
 
   bool Root() const { return !place_.parent.has_value(); }
-  // The tree of the members less the silent parents and the members still settling; moves
-  // this agent if its place changed.
+  // The tree of the members less the silent parents; moves this agent if its place changed.
   void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
   void CheckSilence(double now_s);
   // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
@@ -175,8 +167,6 @@ class TreeExchange {
   std::set<AgentId> given_;    // the members as last set (SetMembers)
   std::set<AgentId> members_;  // those of the tree: given_ less the silent parents
   std::map<AgentId, double> silent_;  // a parent that fell silent -> when it may come back
-  std::map<AgentId, double> settling_;  // a member that came back -> when it joins the tree
-  double away_until_ = -1.0;  // members that come back before then join at once (OnAway)
   std::optional<std::pair<AgentId, double>> parent_lapse_;  // the parent's lapse, due then
   std::vector<AgentId> sorted_;
   TreePlace place_;

@@ -121,13 +121,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const Config& config = ConfigOf(in.Byte());
   const int n = config.agents.count;
   const AgentId self = 1 + static_cast<AgentId>(in.Byte() % n);
-  const double hold_s = 0.5 * static_cast<double>(1 + in.Byte() % 8);
-  const double settle_s = 0.25 * static_cast<double>(in.Byte() % 4);
-  protocol::TreeExchange relay(config, protocol::TreeExchange::Options{self, kRun, WriterOf(self), hold_s, settle_s});
+  protocol::TreeExchange relay(config, protocol::TreeExchange::Options{self, kRun, WriterOf(self)});
   double now = 0.0;
   StepIndex step = 1;
   while (!in.empty()) {
-    switch (in.Byte() % 9) {
+    switch (in.Byte() % 8) {
       case 0: {  // a batch from anyone
         protocol::BatchMsg batch;
         batch.run = in.Bool() ? kRun : in.U64();
@@ -175,9 +173,6 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         relay.OnParentLiveliness(id, in.Bool(), now);
         break;
       }
-      case 7:  // it was away itself (its loop stood still)
-        relay.OnAway(now);
-        break;
       default:  // up to its next deadline
         if (const auto due = relay.NextDeadline()) {
           if (!(*due >= now - 1e-9)) Violation("a deadline that is not a time");

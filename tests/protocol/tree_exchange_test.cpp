@@ -543,43 +543,6 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   CHECK(child.place().parent == AgentId{2});
 }
 
-TEST_CASE("A member that comes back joins the tree after the settling time, unless this agent "
-          "was the one away",
-          "[protocol][tree]") {
-  const deif::Config config = ConfigFor(13, 3);
-  TreeExchange child(config, TreeExchange::Options{5, kRun, WriterOf(5), /*silent_hold_s=*/5.0, /*settle_s=*/1.0});
-  const std::set<AgentId> all{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13};
-  std::set<AgentId> without2 = all;
-  without2.erase(2);
-  child.SetMembers(all, 0.0);
-  REQUIRE(child.place().parent == AgentId{2});
-  const auto parents = [&child] {
-    std::vector<AgentId> out;  // each move: the new parent, or 0 for the root
-    for (const auto& a : child.TakeActions()) {
-      if (const auto* r = std::get_if<protocol::tree_action::Reparent>(&a)) out.push_back(r->parent.value_or(0));
-    }
-    return out;
-  };
-  child.SetMembers(without2, 1.0);  // 2 lost (frozen, say)
-  CHECK(parents() == std::vector<AgentId>{1});
-  child.SetMembers(all, 2.0);  // 2 is back, and may not hear anyone yet
-  CHECK(parents().empty());
-  CHECK(child.members().count(2) == 0);
-  REQUIRE(child.NextDeadline().has_value());
-  CHECK(*child.NextDeadline() <= 3.0);
-  child.OnTimer(2.5);
-  CHECK(parents().empty());
-  child.OnTimer(3.0);
-  CHECK(parents() == std::vector<AgentId>{2});
-  // This agent was the one away (its loop stood still): the members it lost meanwhile and
-  // now hears again join at once.
-  child.SetMembers(without2, 5.0);
-  CHECK(parents() == std::vector<AgentId>{1});
-  child.OnAway(6.0);
-  child.SetMembers(all, 6.1);
-  CHECK(parents() == std::vector<AgentId>{2});
-}
-
 TEST_CASE("A relay with a new child sends again only its newest steps", "[protocol][tree]") {
   // 15 agents, fan-out 2: 1 > {2, 3}, 2 > {4, 5}, 4 > {8, 9}, 5 > {10, 11}.
   const deif::Config config = ConfigFor(15, 2);
