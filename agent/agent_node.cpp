@@ -158,6 +158,18 @@ int AgentNode::Run() {
     }
     const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
+    if (last_loop_s_ >= 0.0 && now_s - last_loop_s_ > AwayAfterS()) {
+      // This process was frozen or starved: the lapses it now sees are of its own making
+      // (it read nothing), for as long as its peers take to renew their liveliness.
+      const double hold_s =
+          std::max(dds::EffectiveTimings(config_).liveliness_lease_s, EffectiveRelayLeaseS(config_)) +
+          config_.network.liveliness_grace_s;
+      context_.log->info("the loop stood still for {:.2f} s: peers' lapses count only after {:.2f} s more",
+                         now_s - last_loop_s_, hold_s);
+      protocol_.OnAway(now_s, hold_s);
+      if (tree_) tree_->OnAway(now_s, hold_s);
+    }
+    last_loop_s_ = now_s;
     // From the first step on: before it, what arrives comes from the DDS histories of
     // writers just matched, and its delay is the wait for the start (docs/ARTEFACTS.md).
     if (protocol_.last_written_step() >= 1) delivery_.Record(events);
@@ -392,6 +404,12 @@ void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
     node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
     node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);
   }
+}
+
+double AgentNode::AwayAfterS() const {
+  // The loop wakes at least every kMaxWaitS; away longer than a lease of its peers' writers,
+  // they lapse in its view.
+  return std::max(2.0 * kMaxWaitS, dds::EffectiveTimings(config_).liveliness_lease_s);
 }
 
 std::string AgentNode::ParentName(std::optional<AgentId> parent) {

@@ -51,6 +51,8 @@ class AgentNode : public dds::Application {
   // exist (move false), or moving them (true).
   void PlaceRelays(std::optional<AgentId> parent, bool move);
   static std::string ParentName(std::optional<AgentId> parent);
+  // How long a gap between two wake-ups of the loop means this process was away.
+  double AwayAfterS() const;
   // Ends Run() when this process can no longer hear (Node::ReceiveStuck): restarts it in
   // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();
@@ -78,6 +80,7 @@ class AgentNode : public dds::Application {
   // Relay writers to this agent (deif/relay_down) -> the parent whose batches they carried:
   // their liveliness is the parent's (TreeExchange::OnParentLiveliness).
   std::map<protocol::SenderKey, AgentId> parent_writers_;
+  double last_loop_s_ = -1.0;  // when the loop last woke
   std::optional<AgentCsv> csv_;
   dds::DeliveryDelays delivery_;  // docs/ARTEFACTS.md, "Delivery delays"
   std::atomic<bool> stop_requested_{false};

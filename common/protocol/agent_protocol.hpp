@@ -112,6 +112,11 @@ class AgentProtocol {
   // A remote writer's liveliness changed: a peer's contribution writer, or the target's
   // range writer.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // This process itself was away (frozen or starved; its loop stood still) until now: a
+  // lapse of a peer's or the target's writer within hold_s from now counts only if it lasts
+  // until then. Its peers were not gone; it read nothing (docs/PROTOCOL.md, "Slow is not
+  // gone").
+  void OnAway(double now_s, double hold_s) { lapses_.HoldUntil(now_s + hold_s); }
   void OnTimer(double now_s);
   // How many peers' contribution writers this agent's transport has matched, and how many
   // range writers its range reader has matched. Before the first step the first is

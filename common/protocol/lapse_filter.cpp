@@ -13,9 +13,15 @@ std::optional<bool> LapseFilter::Report(const SenderKey& writer, bool alive, dou
     }
     return true;
   }
-  if (grace_s_ <= 0.0) return false;
-  held_.emplace(writer, now_s + grace_s_);  // a second report keeps the first due time
+  const double due_s = std::max(now_s + grace_s_, hold_until_s_);
+  if (due_s <= now_s) return false;
+  held_.emplace(writer, due_s);  // a second report keeps the first due time
   return std::nullopt;
+}
+
+void LapseFilter::HoldUntil(double until_s) {
+  hold_until_s_ = std::max(hold_until_s_, until_s);
+  for (auto& entry : held_) entry.second = std::max(entry.second, hold_until_s_);
 }
 
 std::vector<SenderKey> LapseFilter::Due(double now_s) {

@@ -27,11 +27,16 @@ class LapseFilter {
   bool Confirm(const SenderKey& writer) { return held_.erase(writer) > 0; }
   // When the next held loss is due (nullopt: none held).
   std::optional<double> NextDue() const;
+  // This process itself was away (frozen, starved) until now: its peers' writers lapse in
+  // its view because it read nothing, not because they are gone. Every loss held or reported
+  // before `until_s` is due no sooner than then.
+  void HoldUntil(double until_s);
   // Lapses that ended within the grace (never acted on).
   long ignored() const { return ignored_; }
 
  private:
   double grace_s_;
+  double hold_until_s_ = -1.0;
   std::map<SenderKey, double> held_;  // writer -> when its loss is due
   long ignored_ = 0;
 };

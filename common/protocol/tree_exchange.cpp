@@ -95,8 +95,13 @@ void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
     return;
   }
   if (place_.parent != id || (parent_lapse_ && parent_lapse_->first == id)) return;
-  parent_lapse_.emplace(id, now_s + config_.network.liveliness_grace_s);
+  parent_lapse_.emplace(id, std::max(now_s + config_.network.liveliness_grace_s, hold_until_s_));
   CheckSilence(now_s);
+}
+
+void TreeExchange::OnAway(double now_s, double hold_s) {
+  hold_until_s_ = std::max(hold_until_s_, now_s + hold_s);
+  if (parent_lapse_) parent_lapse_->second = std::max(parent_lapse_->second, hold_until_s_);
 }
 
 void TreeExchange::CheckSilence(double now_s) {

@@ -100,6 +100,10 @@ class TreeExchange {
   // tree for silent_hold_s: every agent's membership loses a dead agent only after the
   // lease of every agent's writers, which grows with N (docs/SCALING.md, "Losing a relay").
   void OnParentLiveliness(AgentId id, bool alive, double now_s);
+  // This agent itself was away (frozen or starved) until now: a lapse of its parent's relay
+  // writer within hold_s from now counts only if it lasts until then (as
+  // AgentProtocol::OnAway).
+  void OnAway(double now_s, double hold_s);
   // The target's roll call of `step`: which subtrees have a contribution to wait for.
   void OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s);
   // This agent's own contribution.
@@ -168,6 +172,7 @@ class TreeExchange {
   std::set<AgentId> members_;  // those of the tree: given_ less the silent parents
   std::map<AgentId, double> silent_;  // a parent that fell silent -> when it may come back
   std::optional<std::pair<AgentId, double>> parent_lapse_;  // the parent's lapse, due then
+  double hold_until_s_ = -1.0;  // no lapse is due before then (OnAway)
   std::vector<AgentId> sorted_;
   TreePlace place_;
   std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children

@@ -125,7 +125,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   double now = 0.0;
   StepIndex step = 1;
   while (!in.empty()) {
-    switch (in.Byte() % 8) {
+    switch (in.Byte() % 9) {
       case 0: {  // a batch from anyone
         protocol::BatchMsg batch;
         batch.run = in.Bool() ? kRun : in.U64();
@@ -173,6 +173,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         relay.OnParentLiveliness(id, in.Bool(), now);
         break;
       }
+      case 7:  // it was away itself (its loop stood still)
+        relay.OnAway(now, 0.01 * static_cast<double>(in.Byte()));
+        break;
       default:  // up to its next deadline
         if (const auto due = relay.NextDeadline()) {
           if (!(*due >= now - 1e-9)) Violation("a deadline that is not a time");

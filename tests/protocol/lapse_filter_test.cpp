@@ -61,3 +61,32 @@ TEST_CASE("Confirm ends a held lapse at once; a grace of 0 acts on every lapse",
   REQUIRE(now.has_value());
   CHECK_FALSE(*now);
 }
+
+TEST_CASE("After this process was away, lapses count only once they outlast the hold", "[protocol][lapse]") {
+  // A process frozen for seconds reads nothing: every peer's writer lapses in its view until
+  // the peers' next renewals reach it. With a grace of 0 too.
+  for (const double grace : {0.2, 0.0}) {
+    LapseFilter filter(grace);
+    // Just before it noticed: held for the grace, or (grace 0) a loss at once.
+    CHECK(filter.Report(Writer(1), false, 9.9).has_value() == (grace == 0.0));
+    filter.HoldUntil(12.0);
+    CHECK_FALSE(filter.Report(Writer(2), false, 10.0).has_value());
+    CHECK_FALSE(filter.Report(Writer(3), false, 10.5).has_value());
+    CHECK(filter.NextDue() == Approx(12.0));
+    CHECK_FALSE(filter.Report(Writer(2), true, 11.0).has_value());  // renewed: never lost
+    CHECK(filter.Due(11.99).empty());
+    const auto due = filter.Due(12.0);  // those that stayed silent: lost
+    REQUIRE(due.size() == (grace > 0.0 ? 2u : 1u));
+    CHECK(due.back() == Writer(3));
+    if (grace > 0.0) CHECK(due.front() == Writer(1));  // held, and due at the hold's end
+    // After the hold, the grace alone again.
+    const auto later = filter.Report(Writer(4), false, 20.0);
+    if (grace > 0.0) {
+      CHECK_FALSE(later.has_value());
+      CHECK(filter.NextDue() == Approx(20.0 + grace));
+    } else {
+      REQUIRE(later.has_value());
+      CHECK_FALSE(*later);
+    }
+  }
+}

@@ -543,6 +543,36 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   CHECK(child.place().parent == AgentId{2});
 }
 
+TEST_CASE("After this agent was away, its parent's lapse counts only once it outlasts the hold",
+          "[protocol][tree]") {
+  const deif::Config config = ConfigFor(13, 3);
+  TreeExchange child(config, TreeExchange::Options{5, kRun, WriterOf(5)});
+  child.SetMembers(std::set<AgentId>{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13}, 0.0);
+  child.TakeActions();
+  const auto moved = [&child] {
+    for (const auto& a : child.TakeActions()) {
+      if (std::holds_alternative<protocol::tree_action::Reparent>(a)) return true;
+    }
+    return false;
+  };
+  child.OnAway(10.0, 2.0);  // frozen until 10.0: its parent's writer lapses in its view
+  child.OnParentLiveliness(2, false, 10.1);
+  child.OnTimer(11.0);
+  CHECK_FALSE(moved());
+  child.OnParentLiveliness(2, true, 11.5);  // its batches reach the agent again
+  child.OnTimer(13.0);
+  CHECK_FALSE(moved());
+  CHECK(child.place().parent == AgentId{2});
+  // A parent that stays silent past the hold is left.
+  child.OnAway(20.0, 2.0);
+  child.OnParentLiveliness(2, false, 20.1);
+  child.OnTimer(21.9);
+  CHECK_FALSE(moved());
+  child.OnTimer(22.0);
+  CHECK(moved());
+  CHECK(child.place().parent == AgentId{1});
+}
+
 TEST_CASE("A relay with a new child sends again only its newest steps", "[protocol][tree]") {
   // 15 agents, fan-out 2: 1 > {2, 3}, 2 > {4, 5}, 4 > {8, 9}, 5 > {10, 11}.
   const deif::Config config = ConfigFor(15, 2);
