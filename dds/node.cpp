@@ -752,15 +752,17 @@ struct Node::Impl {
   std::condition_variable assert_cv;
   bool assert_stop = false;
   std::map<fdds::DataWriter*, Clock::time_point> last_write;  // guarded by assert_mutex
-  // MANUAL_BY_TOPIC writers, how long each may stay idle, and its own listener of matches
-  // (nullptr: shared by several writers); guarded by assert_mutex.
+  // MANUAL_BY_TOPIC writers, how long each may stay idle, its own listener of matches
+  // (nullptr: shared by several writers) and its thread (StartLiveliness); guarded by
+  // assert_mutex.
   struct Asserted {
     fdds::DataWriter* writer;
     Clock::duration period;
     const MatchListener* matches;
+    bool relay = false;
   };
   std::vector<Asserted> asserted;
-  std::thread asserter;
+  std::thread asserter, relay_asserter;
 
   explicit Impl(const Config& c) : config(c) {}
 };
@@ -867,6 +869,7 @@ Node::~Node() {
   }
   d.assert_cv.notify_all();
   if (d.asserter.joinable()) d.asserter.join();
+  if (d.relay_asserter.joinable()) d.relay_asserter.join();
   if (d.participant == nullptr) return;
   for (auto& [topic, reader] : d.readers) d.waitset.detach_condition(reader->get_statuscondition());
   d.waitset.detach_condition(d.guard);
@@ -1092,16 +1095,20 @@ void Node::StartLiveliness() {
       const auto listener = d.writer_listeners.find(topic);
       const MatchListener* matches =
           topic != Topic::kRange && listener != d.writer_listeners.end() ? listener->second.get() : nullptr;
-      d.asserted.push_back({writer, Seconds(AssertPeriodOf(spec, d.config)), matches});
+      d.asserted.push_back({writer, Seconds(AssertPeriodOf(spec, d.config)), matches, spec.relay_lease});
     }
     for (const Impl::Asserted& a : d.asserted) d.last_write[a.writer] = Clock::now() - a.period;
     // A write renews a writer's liveliness, so only writers idle for their period assert: in
     // a busy network every assertion is a message to every matched reader. A writer that no
     // reader matches (a leaf's relay writer) has nobody to tell.
     // The assertions are sent without the lock: a write (WriteSample) takes it too, and a
-    // send can block for a while (a dead process's shared-memory port, docs/FASTDDS_NOTES.md).
-    // Writers live until the thread is joined.
-    d.asserter = std::thread([&d] {
+    // send can block for a while (a dead process's shared-memory port, docs/FASTDDS_NOTES.md:
+    // 1 s per message). The relay writers have a thread of their own: their short lease
+    // tells a relay's children that it is gone, and an assertion of another writer stuck at
+    // a dead peer's port (every contribution writer has a reader there) must not let it
+    // lapse (at 64 agents in real time that moved every relay's children at once). Writers
+    // live until the threads are joined.
+    const auto assert_loop = [&d](bool relays) {
       std::vector<fdds::DataWriter*> due;
       std::unique_lock<std::mutex> held(d.assert_mutex);
       while (!d.assert_stop) {
@@ -1109,6 +1116,7 @@ void Node::StartLiveliness() {
         auto next = now + std::chrono::seconds(1);
         due.clear();
         for (const Impl::Asserted& a : d.asserted) {
+          if (a.relay != relays) continue;
           auto& renewed = d.last_write[a.writer];
           if (now - renewed >= a.period) {
             if (a.matches == nullptr || a.matches->AnyReader()) due.push_back(a.writer);
@@ -1123,7 +1131,11 @@ void Node::StartLiveliness() {
         }
         d.assert_cv.wait_until(held, next, [&d] { return d.assert_stop; });
       }
-    });
+    };
+    d.asserter = std::thread(assert_loop, false);
+    const bool any_relay = std::any_of(d.asserted.begin(), d.asserted.end(),
+                                       [](const Impl::Asserted& a) { return a.relay; });
+    if (any_relay) d.relay_asserter = std::thread(assert_loop, true);
   }
 }
 
