@@ -5,7 +5,8 @@
 
 namespace deif::protocol {
 
-std::optional<bool> LapseFilter::Report(const SenderKey& writer, bool alive, double now_s) {
+template <typename Key>
+std::optional<bool> BasicLapseFilter<Key>::Report(const Key& writer, bool alive, double now_s) {
   if (alive) {
     if (held_.erase(writer) > 0) {
       ++ignored_;
@@ -19,13 +20,15 @@ std::optional<bool> LapseFilter::Report(const SenderKey& writer, bool alive, dou
   return std::nullopt;
 }
 
-void LapseFilter::HoldUntil(double until_s) {
+template <typename Key>
+void BasicLapseFilter<Key>::HoldUntil(double until_s) {
   hold_until_s_ = std::max(hold_until_s_, until_s);
   for (auto& entry : held_) entry.second = std::max(entry.second, hold_until_s_);
 }
 
-std::vector<SenderKey> LapseFilter::Due(double now_s) {
-  std::vector<std::pair<double, SenderKey>> due;
+template <typename Key>
+std::vector<Key> BasicLapseFilter<Key>::Due(double now_s) {
+  std::vector<std::pair<double, Key>> due;
   for (auto it = held_.begin(); it != held_.end();) {
     if (it->second <= now_s) {
       due.emplace_back(it->second, it->first);
@@ -35,16 +38,20 @@ std::vector<SenderKey> LapseFilter::Due(double now_s) {
     }
   }
   std::sort(due.begin(), due.end());
-  std::vector<SenderKey> out;
+  std::vector<Key> out;
   out.reserve(due.size());
   for (auto& d : due) out.push_back(d.second);
   return out;
 }
 
-std::optional<double> LapseFilter::NextDue() const {
+template <typename Key>
+std::optional<double> BasicLapseFilter<Key>::NextDue() const {
   std::optional<double> t;
   for (const auto& [writer, due_s] : held_) t = t ? std::min(*t, due_s) : due_s;
   return t;
 }
+
+template class BasicLapseFilter<SenderKey>;
+template class BasicLapseFilter<AgentId>;
 
 }  // namespace deif::protocol

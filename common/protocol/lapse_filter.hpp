@@ -13,18 +13,21 @@
 
 namespace deif::protocol {
 
-class LapseFilter {
+// Keyed by whatever names a writer: its key (a peer's or the target's writer), or the agent
+// whose writer it is (a parent's relay writer, TreeExchange).
+template <typename Key>
+class BasicLapseFilter {
  public:
-  explicit LapseFilter(double grace_s) : grace_s_(grace_s) {}
+  explicit BasicLapseFilter(double grace_s) : grace_s_(grace_s) {}
 
   // A liveliness change as DDS reported it. Returns the change to act on now: a loss is
   // held for the grace (nullopt); a return within the grace cancels it (nullopt).
-  std::optional<bool> Report(const SenderKey& writer, bool alive, double now_s);
+  std::optional<bool> Report(const Key& writer, bool alive, double now_s);
   // The held losses whose grace is over, oldest first: act on each as a loss.
-  std::vector<SenderKey> Due(double now_s);
+  std::vector<Key> Due(double now_s);
   // Ends the grace of `writer`'s held loss at once (another writer took its identity, so it
   // is gone). True if one was held: act on it as a loss.
-  bool Confirm(const SenderKey& writer) { return held_.erase(writer) > 0; }
+  bool Confirm(const Key& writer) { return held_.erase(writer) > 0; }
   // When the next held loss is due (nullopt: none held).
   std::optional<double> NextDue() const;
   // This process itself was away (frozen, starved) until now: its peers' writers lapse in
@@ -37,8 +40,12 @@ class LapseFilter {
  private:
   double grace_s_;
   double hold_until_s_ = -1.0;
-  std::map<SenderKey, double> held_;  // writer -> when its loss is due
+  std::map<Key, double> held_;  // writer -> when its loss is due
   long ignored_ = 0;
 };
+
+using LapseFilter = BasicLapseFilter<SenderKey>;
+extern template class BasicLapseFilter<SenderKey>;
+extern template class BasicLapseFilter<AgentId>;
 
 }  // namespace deif::protocol

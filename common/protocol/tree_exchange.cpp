@@ -70,7 +70,8 @@ TreeExchange::TreeExchange(const Config& config, Options options)
       // hop of delay is a deadline missed (at 10 % loss, 3 hosts, 20 agents: 85 % of the
       // agent-steps complete against 71 %).
       late_gather_s_(config.scenario.mode == StepMode::kLockStep ? 0.5 * wait_s_ : 0.0),
-      keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)) {
+      keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)),
+      parent_lapses_(config.network.liveliness_grace_s) {
   for (AgentId id = 1; id <= static_cast<AgentId>(config.agents.count); ++id) members_.insert(id);
   members_.insert(options_.self);
   given_ = members_;
@@ -90,29 +91,22 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
 }
 
 void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
-  if (alive) {
-    if (parent_lapse_ && parent_lapse_->first == id) parent_lapse_.reset();  // back within the grace
-    return;
-  }
-  if (place_.parent != id || (parent_lapse_ && parent_lapse_->first == id)) return;
-  parent_lapse_.emplace(id, std::max(now_s + config_.network.liveliness_grace_s, hold_until_s_));
+  if (!alive && place_.parent != id) return;  // only its parent's lapses (a return ends any)
+  const std::optional<bool> change = parent_lapses_.Report(id, alive, now_s);
+  if (change && !*change) LeaveSilent(id, now_s);  // no grace
   CheckSilence(now_s);
 }
 
-void TreeExchange::OnAway(double now_s, double hold_s) {
-  hold_until_s_ = std::max(hold_until_s_, now_s + hold_s);
-  if (parent_lapse_) parent_lapse_->second = std::max(parent_lapse_->second, hold_until_s_);
+void TreeExchange::OnAway(double now_s, double hold_s) { parent_lapses_.HoldUntil(now_s + hold_s); }
+
+void TreeExchange::LeaveSilent(AgentId parent, double now_s) {
+  if (place_.parent != parent) return;  // it moved meanwhile
+  silent_[parent] = now_s + options_.silent_hold_s;
+  Rebuild(now_s, parent);
 }
 
 void TreeExchange::CheckSilence(double now_s) {
-  if (parent_lapse_ && now_s >= parent_lapse_->second) {
-    const AgentId id = parent_lapse_->first;
-    parent_lapse_.reset();
-    if (place_.parent == id) {  // still its parent, and silent since the lapse
-      silent_[id] = now_s + options_.silent_hold_s;
-      Rebuild(now_s, id);
-    }
-  }
+  for (AgentId parent : parent_lapses_.Due(now_s)) LeaveSilent(parent, now_s);
   bool back = false;
   for (auto it = silent_.begin(); it != silent_.end();) {
     if (now_s >= it->second) {
@@ -398,7 +392,7 @@ std::optional<double> TreeExchange::NextDeadline() const {
   const auto sooner = [&next](double t) {
     if (!next || t < *next) next = t;
   };
-  if (parent_lapse_) sooner(parent_lapse_->second);
+  if (const std::optional<double> lapse = parent_lapses_.NextDue()) sooner(*lapse);
   for (const auto& entry : silent_) sooner(entry.second);
   for (StepIndex step : unflushed_) {  // each kept, with first_s set (StateOf)
     sooner(steps_.at(step).first_s + wait_s_);

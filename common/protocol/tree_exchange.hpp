@@ -30,6 +30,7 @@
 #include <vector>
 
 #include "common/config/config.hpp"
+#include "common/protocol/lapse_filter.hpp"
 #include "common/protocol/messages.hpp"
 
 namespace deif::protocol {
@@ -136,6 +137,7 @@ class TreeExchange {
   // The tree of the members less the silent parents; moves this agent if its place changed.
   void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
   void CheckSilence(double now_s);
+  void LeaveSilent(AgentId parent, double now_s);  // if it is still the parent
   // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
   StepState* StateOf(StepIndex step, double now_s);
   // Stores a new item (false: a duplicate, or not storable) and queues it to be sent down,
@@ -171,8 +173,7 @@ class TreeExchange {
   std::set<AgentId> given_;    // the members as last set (SetMembers)
   std::set<AgentId> members_;  // those of the tree: given_ less the silent parents
   std::map<AgentId, double> silent_;  // a parent that fell silent -> when it may come back
-  std::optional<std::pair<AgentId, double>> parent_lapse_;  // the parent's lapse, due then
-  double hold_until_s_ = -1.0;  // no lapse is due before then (OnAway)
+  BasicLapseFilter<AgentId> parent_lapses_;  // the parent's relay writer's lapses, held for the grace
   std::vector<AgentId> sorted_;
   TreePlace place_;
   std::vector<std::vector<AgentId>> child_subtrees_;  // SubtreeOf each of place_.children
