@@ -85,8 +85,11 @@ protocol::ContributionMsg Contribution(FuzzInput& in, const Config& config, Agen
   return c;
 }
 
-void Check(const std::vector<protocol::TreeAction>& actions, const protocol::TreeExchange& relay,
-           const Config& config, AgentId self) {
+// `parent`: the relay's parent when the event came. The actions are carried out in order, so
+// a batch sent up before a move in the same event went to the parent of that moment. Returns
+// the parent after the moves the actions announce.
+std::optional<AgentId> Check(const std::vector<protocol::TreeAction>& actions, std::optional<AgentId> parent,
+                             const Config& config, AgentId self) {
   const auto valid = [&](const protocol::RelayedContribution& item) {
     return item.msg.run == kRun && protocol::ValidAgentId(item.msg.agent_id, config) &&
            protocol::ValidateContributionMsg(item.msg, config) == nullptr;
@@ -101,17 +104,19 @@ void Check(const std::vector<protocol::TreeAction>& actions, const protocol::Tre
       if (move->silent && (move->parent == move->silent || *move->silent == self)) {
         Violation("moved under the parent it left as silent, or took itself for silent");
       }
+      parent = move->parent;
     } else if (const auto* send = std::get_if<protocol::tree_action::Send>(&action)) {
       const protocol::BatchMsg& b = send->batch;
       if (b.run != kRun || b.sender_id != self) Violation("sent a batch that is not its own");
       if (b.items.size() > protocol::kSentBatchItems) Violation("sent a batch larger than a sample may be");
-      if (!b.down && !relay.place().parent) Violation("sent up without a parent");
+      if (!b.down && !parent) Violation("sent up without a parent");
       for (const auto& item : b.items) {
         if (!valid(item)) Violation("forwarded a contribution the validators refuse");
       }
     }
   }
   if (actions.size() > 100000) Violation("an event made an unbounded number of actions");
+  return parent;
 }
 
 }  // namespace
@@ -125,6 +130,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   double now = 0.0;
   StepIndex step = 1;
   while (!in.empty()) {
+    const std::optional<AgentId> parent = relay.place().parent;
     switch (in.Byte() % 9) {
       case 0: {  // a batch from anyone
         protocol::BatchMsg batch;
@@ -184,7 +190,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         relay.OnTimer(now);
         break;
     }
-    Check(relay.TakeActions(), relay, config, self);
+    if (Check(relay.TakeActions(), parent, config, self) != relay.place().parent) {
+      Violation("moved without saying so (a Reparent action for every move)");
+    }
   }
   return 0;
 }
