@@ -142,6 +142,7 @@ Timings EffectiveTimings(const Config& config) {
 
 namespace {
 
+// A duration in seconds as the clock's.
 Clock::duration Seconds(double s) {
   return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
 }
@@ -686,14 +687,11 @@ constexpr int kMaxAuthenticationRestarts = 5;
 // stalled). Bounded: after kLongest it goes on with what it has.
 bool AwaitAuthentication(const ParticipantListener& listener, const Config& config) {
   const auto start = Clock::now();
-  const auto as_duration = [](double s) {
-    return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
-  };
   // A handshake is a few milliseconds; its messages are resent every 0.5 s and more.
-  const auto stall = as_duration(3.0);
-  const auto least = as_duration(std::min(0.5, config.network.participant_announcement_s));
-  const auto quiet = as_duration(0.2);
-  const auto longest = as_duration(15.0);
+  const auto stall = Seconds(3.0);
+  const auto least = Seconds(std::min(0.5, config.network.participant_announcement_s));
+  const auto quiet = Seconds(0.2);
+  const auto longest = Seconds(15.0);
   while (Clock::now() - start < longest) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
     const ParticipantListener::Progress p = listener.Check(stall);
@@ -708,7 +706,7 @@ bool AwaitAuthentication(const ParticipantListener& listener, const Config& conf
 Clock::duration RestartBackoff(int restart, int agents) {
   static std::mt19937_64 rng{std::random_device{}()};
   std::uniform_real_distribution<double> wait_s(0.0, RestartWindowS(restart, agents));
-  return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait_s(rng)));
+  return Seconds(wait_s(rng));
 }
 
 }  // namespace
