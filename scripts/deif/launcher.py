@@ -163,30 +163,61 @@ def shm_snapshot():
         return set()
 
 
+def _shm_family(name):
+    """The Fast DDS object a /dev/shm file belongs to: a port or a segment (the file that is
+    mapped), its lock file (_el, _sl: held open with flock, never mapped) and its named mutex
+    (sem.*_mutex: mapped only while in use) share it."""
+    if name.startswith("sem."):
+        name = name[len("sem."):]
+    for suffix in ("_mutex", "_el", "_sl"):
+        if name.endswith(suffix):
+            return name[:-len(suffix)]
+    return name
+
+
 def _shm_in_use():
+    """Families of /dev/shm files that some live process maps or holds open."""
     used = set()
+    prefix = SHM_DIR + "/"
     for pid in os.listdir("/proc"):
         if not pid.isdigit():
             continue
         try:
             with open(f"/proc/{pid}/maps") as f:
                 for line in f:
-                    i = line.find(SHM_DIR + "/")
+                    i = line.find(prefix)
                     if i >= 0:
-                        used.add(os.path.basename(line[i:].strip()))
+                        used.add(_shm_family(os.path.basename(line[i:].strip())))
         except OSError:
             continue
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                target = os.readlink(f"/proc/{pid}/fd/{fd}")
+            except OSError:
+                continue
+            if target.startswith(prefix):
+                used.add(_shm_family(target[len(prefix):].removesuffix(" (deleted)")))
     return used
 
 
 def shm_cleanup(before):
-    """Removes the Fast DDS shared-memory files our run left (kill -9 leaves them) that no
-    live process maps."""
+    """Removes the Fast DDS shared-memory files our run left (kill -9 leaves them), a port's
+    or segment's files together and only when no live process maps or holds open any of
+    them: another run on this host (another domain) made some of the files that appeared
+    during ours, and a live port whose lock file is removed looks dead to its peers, which
+    then stop sending to it (docs/RUNNING.md, "Several runs on one host")."""
     leftovers = shm_snapshot() - before
     if not leftovers:
         return 0
+    used = _shm_in_use()
     removed = 0
-    for name in sorted(leftovers - _shm_in_use()):
+    for name in sorted(leftovers):
+        if _shm_family(name) in used:
+            continue
         try:
             os.unlink(os.path.join(SHM_DIR, name))
             removed += 1

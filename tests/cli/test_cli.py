@@ -143,6 +143,43 @@ def test_sigkill_of_the_launcher_leaves_no_orphan(domain, work, reaper):
         deif_launcher.shm_cleanup(shm_before)
 
 
+def test_two_runs_on_one_host_leave_each_other_alone(domain, work, reaper):
+    """Run A (domain D) ends while run B (domain D + 1, 16 agents) runs. A's clean-up of its
+    shared-memory files must leave B's alone: B's ports' lock files are held open, not
+    mapped, and a process that opens a port whose lock file is gone takes the port for dead
+    and makes it anew, cutting its listener off (docs/RUNNING.md, "Several runs on one
+    host"). B's target starts again after A is gone, so it opens every agent's port then."""
+    first = start_long_run(domain, os.path.join(work, "a"), reaper)
+    out_b = os.path.join(work, "b")
+    agents_b, steps_b = 16, 80
+    second = subprocess.Popen(
+        [PYTHON, DEIF_RUN, DEFAULT, "--agents", str(agents_b), "--steps", str(steps_b),
+         "--restart-target", str(steps_b // 2),
+         "--domain", str(domain + 1), "--set", "scenario.mode=realtime",
+         "--set", "scenario.period_s=0.1", "--quiet",
+         "--out", out_b],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=dict(os.environ, DEIF_BUILD_DIR=BUILD))
+    reaper(second, out_b)
+    target_csv = os.path.join(out_b, "target.csv")
+    wait_until(lambda: len(artefacts.read_csv(target_csv)) >= 5, 120, "run B's first steps")
+
+    first.send_signal(signal.SIGTERM)  # A stops and cleans up now
+    first.communicate(timeout=120)
+    assert first.returncode == 128 + signal.SIGTERM
+    _, stderr = second.communicate(timeout=240)
+
+    assert second.returncode == 0, stderr
+    with open(os.path.join(out_b, "summary.json")) as f:
+        summary = json.load(f)
+    assert summary["ok"] is True
+    assert summary["metrics"]["last_step"] == steps_b
+    assert summary["metrics"]["final_agents"] == agents_b
+    assert [p["name"] for p in summary["processes"] if p["restarts_in_place"]] == []
+    for j in range(1, agents_b + 1):
+        assert summary["metrics"]["per_agent"][str(j)]["rows"] == steps_b
+
+
 def test_domain_out_of_range_starts_nothing(work):
     out = os.path.join(work, "run")
     status, stdout, stderr = run_tool([PYTHON, DEIF_RUN, DEFAULT, "--domain", "300", "--out", out])

@@ -147,3 +147,39 @@ def test_the_start_order_can_be_chosen(deif_sim, work_dir):
     assert together.cfg["network"]["start_timeout_s"] == 96.0
     plain = launcher.Launcher(DEFAULT, os.path.join(work_dir, "b"), agents=4, staggered=True)
     assert plain.staggered
+
+
+def _touch(d, name):
+    with open(os.path.join(d, name), "wb") as f:
+        f.write(b"\0" * 4096)
+
+
+def test_shm_cleanup_keeps_every_file_of_a_port_some_process_uses(tmp_path, monkeypatch):
+    """A port's lock file (_el) is held open, not mapped; its mapped file and named mutex may
+    not be in use at the moment. The cleanup keeps the whole family while any file of it is
+    mapped or open, and removes families nobody uses (docs/RUNNING.md, "Several runs on one
+    host"). Files that were there before the run are never touched."""
+    import mmap
+    d = str(tmp_path)
+    monkeypatch.setattr(launcher, "SHM_DIR", d)
+    _touch(d, "fastrtps_port7000")                    # there before the run
+    before = launcher.shm_snapshot()
+    live_port = ["fastrtps_port7411", "fastrtps_port7411_el", "sem.fastrtps_port7411_mutex"]
+    live_segment = ["fastrtps_0123abcd4567ef89", "fastrtps_0123abcd4567ef89_el"]
+    dead = ["fastrtps_port7413", "fastrtps_port7413_el", "sem.fastrtps_port7413_mutex",
+            "fastrtps_fedcba9876543210", "fastrtps_fedcba9876543210_el"]
+    for name in live_port + live_segment + dead + ["unrelated_file"]:
+        _touch(d, name)
+    lock = open(os.path.join(d, "fastrtps_port7411_el"), "rb")  # held open, like a listener's lock
+    seg = open(os.path.join(d, "fastrtps_0123abcd4567ef89"), "r+b")
+    mapped = mmap.mmap(seg.fileno(), 4096)                       # mapped, like a segment
+    seg.close()
+    try:
+        assert launcher.shm_cleanup(before) == len(dead)
+        left = set(os.listdir(d))
+    finally:
+        mapped.close()
+        lock.close()
+    assert left == set(live_port + live_segment + ["fastrtps_port7000", "unrelated_file"])
+    assert launcher.shm_cleanup(before) == len(live_port + live_segment)  # nobody uses them now
+    assert set(os.listdir(d)) == {"fastrtps_port7000", "unrelated_file"}
