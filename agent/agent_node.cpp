@@ -40,6 +40,7 @@ StepIndex LastStepWritten(const dds::ProcessContext& context, AgentId id) {
 protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& context, AgentId id,
                                                  std::uint64_t token) {
   protocol::AgentProtocol::Options options;
+  options.peer_grace_s = dds::EffectiveTimings(context.config).peer_grace_s;
   options.run = protocol::RunTokenOf(context.run_name);
   options.instance_token = token;
   options.resume_after = LastStepWritten(context, id);
@@ -73,7 +74,8 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
     // to the parent's as the tree changes. It starts in the tree of every agent of the run.
     // A parent that fell silent stays out of this agent's tree for twice the time every
     // agent's membership takes to lose a dead agent (its writers' lease plus the grace).
-    const double lost_after_s = dds::EffectiveTimings(config_).liveliness_lease_s + config_.network.liveliness_grace_s;
+    const dds::Timings timings = dds::EffectiveTimings(config_);
+    const double lost_after_s = timings.liveliness_lease_s + timings.peer_grace_s;
     tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
                                                             node_.WriterKey(dds::Topic::kContribution),
                                                             2.0 * lost_after_s});
@@ -91,8 +93,12 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
                      config_.network.domain_id, instance_token_);
   if (tree_) {
-    context_.log->info("exchange: tree, fan-out {}, parent {} (docs/SCALING.md)", EffectiveTreeFanout(config_),
-                       ParentName(tree_->place().parent));
+    const dds::Timings timings = dds::EffectiveTimings(config_);
+    context_.log->info("exchange: tree, fan-out {}, parent {}; a silent peer is lost after {:.2f} s "
+                       "(lease {:.2f} s, renewed every {:.2f} s, grace {:.2f} s) (docs/SCALING.md)",
+                       EffectiveTreeFanout(config_), ParentName(tree_->place().parent),
+                       timings.liveliness_lease_s + timings.peer_grace_s, timings.liveliness_lease_s,
+                       timings.liveliness_lease_s / timings.assertions_per_lease, timings.peer_grace_s);
   } else {
     context_.log->info("exchange: all to all");
   }

@@ -108,11 +108,20 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
 // more heartbeats, which draw more acknowledgements.
 constexpr double kLivelinessBudgetPerS = 4000.0;
 constexpr double kHeartbeatBudgetPerS = 20000.0;
+// The target's share in real time: heartbeats of its writers of ranges and of the agents'
+// state writers, N of each (WriterQos).
+constexpr double kTargetHeartbeatBudgetPerS = 2000.0;
 // Participant announcements grow as N^2 too: each process's reaches every other, a wake-up
 // of a receive thread each. At N = 64 the default 0.5 s period made 8320 a second; within
 // this budget (2.08 s) a 64-agent lock-step ran 7.6 steps/s against 5.8, with 23 % less CPU
 // a step (docs/BENCHMARKS.md, "Participant announcements at large N").
 constexpr double kAnnouncementBudgetPerS = 2000.0;
+// Renewals of an idle writer that may go missing in a row before a peer takes it for lost.
+// With two renewals per lease a single lost one makes the lease run out as the next is due:
+// 32 agents on 3 hosts with 15 % loss took 720-780 live peers for lost in a 20 s run with
+// the grace of 0.2 s, 25-35 when a lapse counted only after 4 renewals in a row went
+// missing (docs/BENCHMARKS.md, "Repairs in real time, measured 2026-11-26").
+constexpr int kRenewalsLostInARow = 4;
 
 }  // namespace
 
@@ -137,6 +146,11 @@ Timings EffectiveTimings(const Config& config) {
       std::max(net.participant_announcement_s, pairs / kAnnouncementBudgetPerS);
   t.participant_lease_s =
       net.participant_lease_s * (t.participant_announcement_s / net.participant_announcement_s);
+  t.peer_grace_s = net.liveliness_grace_s;
+  if (EffectiveExchange(config) == ExchangeKind::kTree) {
+    const double renewal_s = t.liveliness_lease_s / t.assertions_per_lease;
+    t.peer_grace_s = std::max(t.peer_grace_s, (kRenewalsLostInARow + 1) * renewal_s - t.liveliness_lease_s);
+  }
   return t;
 }
 
@@ -198,7 +212,8 @@ void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config
   }
 }
 
-fdds::DataWriterQos WriterQos(Topic topic, const Config& config) {
+// per_agent_writer: one of the target's writers of ranges, one per agent (d.range_partitions).
+fdds::DataWriterQos WriterQos(Topic topic, const Config& config, bool per_agent_writer = false) {
   const TopicQos spec = QosOf(topic, config.network);
   fdds::DataWriterQos qos = fdds::DATAWRITER_QOS_DEFAULT;
   ApplyCommon(qos, spec, spec.writer_depth, config);
@@ -206,16 +221,32 @@ fdds::DataWriterQos WriterQos(Topic topic, const Config& config) {
   // than a step (docs/FASTDDS_NOTES.md). Heartbeats are sent only while samples are unacked.
   auto& times = qos.reliable_writer_qos().times;
   times.heartbeatPeriod = DdsDuration(EffectiveTimings(config).heartbeat_period_s);
-  if ((topic == Topic::kRelayUp || topic == Topic::kRelayDown) &&
-      config.scenario.mode == StepMode::kRealTime) {
-    // In real time a lost batch delays every agent below it past its deadline: a relay
-    // writer has at most tree_fanout readers, so its heartbeats grow as N, and within the
-    // same budget repair far sooner (20 agents, 3 hosts, 10 % loss, 10 Hz: 97 % of the
-    // agent-steps complete against 81 %). Not in lock-step, where on one busy host slow
-    // acknowledgements drew more heartbeats and cost 20 % of the steps a second
-    // (docs/BENCHMARKS.md, "The tree exchange, measured 2026-11-26").
-    times.heartbeatPeriod = DdsDuration(std::max(config.network.heartbeat_period_s,
-                                                 2.0 * config.agents.count / kHeartbeatBudgetPerS));
+  if (config.scenario.mode == StepMode::kRealTime) {
+    // In real time a lost sample delays its reader past the deadline, and with it every
+    // agent that waits for what the reader sends next (a lost range: that agent's
+    // contribution, missing from every agent's step). The N^2 budget above is for writers
+    // that every agent reads; these have a few readers each, so they may repair sooner
+    // (docs/BENCHMARKS.md, "Repairs in real time, measured 2026-11-26"). Not in lock-step,
+    // where on one busy host slow acknowledgements drew more heartbeats and cost 20 % of the
+    // steps a second (docs/BENCHMARKS.md, "The tree exchange, measured 2026-11-26").
+    const double n = config.agents.count;
+    if (topic == Topic::kRelayUp || topic == Topic::kRelayDown) {
+      // At most tree_fanout readers each, spread over the agents: 2 N pairs in the network
+      // (20 agents, 3 hosts, 10 % loss, 10 Hz: 97 % of the agent-steps complete against 81 %).
+      times.heartbeatPeriod = DdsDuration(std::max(config.network.heartbeat_period_s,
+                                                   2.0 * n / kHeartbeatBudgetPerS));
+    } else if ((topic == Topic::kAgentState || (topic == Topic::kRange && per_agent_writer)) &&
+               config.network.transport == TransportKind::kUdp) {
+      // An agent's state (read by the target) and the target's writer of one agent's ranges,
+      // where samples can be lost in transit (UDPv4 only: the runs across hosts). The N
+      // pairs of each meet in the target, the busiest process, so their heartbeats keep
+      // within a budget of its own. Not over shared memory, where nothing is lost on the
+      // way and heartbeats only cost: at 64 agents on one 2-core host, 6.4 ms made the
+      // target fall behind after a kill and stay behind, 12.8 ms from the first step, and
+      // 32 ms in 1 run of 4, from step 230 on.
+      times.heartbeatPeriod = DdsDuration(std::max(config.network.heartbeat_period_s,
+                                                   n / kTargetHeartbeatBudgetPerS));
+    }
   }
   times.nackResponseDelay = DdsDuration(config.network.nack_response_delay_s);
   times.nackSupressionDuration = Duration_t(0, 0);
@@ -899,7 +930,7 @@ fdds::DataWriter* RangeWriterFor(Node::Impl& d, AgentId id) {
   fdds::Publisher* publisher = d.participant->create_publisher(qos);
   fdds::DataWriter* writer =
       publisher == nullptr ? nullptr
-                           : publisher->create_datawriter(d.topics.at(Topic::kRange), WriterQos(Topic::kRange, d.config),
+                           : publisher->create_datawriter(d.topics.at(Topic::kRange), WriterQos(Topic::kRange, d.config, true),
                                                           d.writer_listeners.at(Topic::kRange).get(),
                                                           fdds::StatusMask::publication_matched());
   if (writer == nullptr) {

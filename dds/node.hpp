@@ -167,6 +167,13 @@ struct Timings {
   double heartbeat_period_s = 0.0;
   double participant_announcement_s = 0.0;
   double participant_lease_s = 0.0;
+  // How long a lapse of a peer's contribution writer is held before it counts as a loss
+  // (protocol::AgentProtocol::Options::peer_grace_s). The configured liveliness_grace_s, or
+  // longer where that writer is renewed by its assertions alone (the tree exchange: it
+  // writes nothing) and the budget made them rare: a lapse then counts only after
+  // kRenewalsLostInARow renewals in a row went missing (docs/PROTOCOL.md, "Slow is not
+  // gone").
+  double peer_grace_s = 0.0;
 };
 Timings EffectiveTimings(const Config& config);
 // How long a process's endpoint discovery may stay short of the participants it sees, unchanged,

@@ -488,7 +488,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "this much longer: a process starved of CPU, or a burst of lost packets, makes a "
            "live peer lapse for a moment, and excluding it would change what is fused. A "
            "killed agent is excluded about liveliness_lease_s + liveliness_grace_s after "
-           "its last write. 0: every lapse is a loss.");
+           "its last write. 0: every lapse is a loss. In the tree exchange from 28 agents "
+           "on, where a peer's writer renews its liveliness only twice a lease, an agent "
+           "holds a peer's lapse until 4 renewals in a row went missing if that is longer: "
+           "0.79 s at 32 agents, 3.12 s at 64 (docs/PROTOCOL.md, \"Slow is not gone\").");
   t.Add("liveliness_assertions_per_lease",
         [](Config& c) -> auto& { return c.network.liveliness_assertions_per_lease; })
       .Default(8)
@@ -554,7 +557,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "are sent only while samples are unacknowledged. 5 ms repairs a loss well within "
            "a 10 Hz step at 20 % loss (docs/PROTOCOL.md, measured with deif_sim). From 10 "
            "agents on, the processes use a longer period, so that the network's "
-           "heartbeats stay within a budget (docs/BENCHMARKS.md, \"Heartbeats at large N\").");
+           "heartbeats stay within a budget (docs/BENCHMARKS.md, \"Heartbeats at large N\"); "
+           "in real time the writers with a few readers each keep a shorter one: the "
+           "relays', and over UDPv4 the states' and each agent's ranges' "
+           "(docs/BENCHMARKS.md, \"Repairs in real time\").");
   t.Add("nack_response_delay_s",
         [](Config& c) -> auto& { return c.network.nack_response_delay_s; })
       .Default(0.001)

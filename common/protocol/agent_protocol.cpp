@@ -135,6 +135,7 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
   }
   pending_ranges_[msg.step] = PendingRange{msg, now_s, unusable_measurement};
   Advance(now_s);
+  if (!finished_) ConfirmLapses(now_s);  // a new roll call: held lapses of peers it leaves out
 }
 
 void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& from,
@@ -153,11 +154,22 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
   Peer& peer = peers_[msg.agent_id];
   // A sample from its writer: it lives. Not one relayed by the tree exchange from a writer
   // seen lost: a relay's history holds the contributions of the dead too; its liveliness
-  // says when it is back (docs/SCALING.md).
-  if (!peer.alive && !(relaying_ && peer.lost_once)) {
+  // says when it is back (docs/SCALING.md). Or a contribution to a step the target began
+  // after this agent saw it lost (a step more, for a range still on its way): nobody
+  // contributes to a step begun after its death. Fast DDS 2.9.1 can leave a live writer
+  // lost for good in a reader's view, its returns never reported (docs/FASTDDS_NOTES.md,
+  // "Liveliness that does not come back").
+  const bool relayed_from_lost = relaying_ && peer.lost_once;
+  if (!peer.alive && (!relayed_from_lost || msg.step > peer.lost_in_step + 1)) {
     peer.alive = true;
     ++membership_version_;
-    Log(LogLevel::kInfo, who + " is a member; members now " + std::to_string(Members().size()));
+    if (relayed_from_lost) {
+      Log(LogLevel::kWarn, who + " is alive again: it contributed to step " + std::to_string(msg.step) +
+                               ", begun after it was seen lost (its liveliness was not reported back); members now " +
+                               std::to_string(Members().size()));
+    } else {
+      Log(LogLevel::kInfo, who + " is a member; members now " + std::to_string(Members().size()));
+    }
   }
   if (!peer.last_position || peer.last_position->first < msg.step - 1) {
     peer.last_position = std::make_pair(msg.step - 1, msg.p_sensor);
@@ -234,13 +246,38 @@ void AgentProtocol::OnContributions(const std::vector<std::pair<ContributionMsg,
 
 void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
   if (finished_ || !started_) return;
-  if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s)) {
+  const bool target = target_writer_ && writer == *target_writer_;
+  const double grace_s = target || options_.peer_grace_s < 0.0 ? config_.network.liveliness_grace_s
+                                                              : options_.peer_grace_s;
+  if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s, grace_s)) {
     ApplyLiveliness(writer, *change, now_s);
   }
 }
 
 void AgentProtocol::ConfirmLapses(double now_s) {
   for (const SenderKey& writer : lapses_.Due(now_s)) {
+    if (finished_) return;
+    ApplyLiveliness(writer, false, now_s);
+  }
+  // A held lapse of a peer that the target's newest roll call no longer names ends now: the
+  // target, whose view of each agent (its state writer) is renewed at every step, saw it
+  // gone too. The longer peer grace only spares peers the rest of the network still hears
+  // (docs/PROTOCOL.md, "Renewals that are rare").
+  const std::vector<AgentId>* roll_call = nullptr;  // the newest: of a range waiting, or a step
+  if (!pending_ranges_.empty() && !pending_ranges_.rbegin()->second.msg.roll_call.empty()) {
+    roll_call = &pending_ranges_.rbegin()->second.msg.roll_call;
+  } else if (!records_.empty() && records_.rbegin()->second.roll_call) {
+    roll_call = &*records_.rbegin()->second.roll_call;
+  }
+  if (roll_call == nullptr) return;
+  std::vector<SenderKey> gone;
+  for (const auto& [id, peer] : peers_) {
+    if (peer.writer && peer.alive && std::find(roll_call->begin(), roll_call->end(), id) == roll_call->end() &&
+        lapses_.Confirm(*peer.writer)) {
+      gone.push_back(*peer.writer);
+    }
+  }
+  for (const SenderKey& writer : gone) {
     if (finished_) return;
     ApplyLiveliness(writer, false, now_s);
   }
@@ -265,6 +302,7 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
   if (!alive) {
     peer.lost_at_s = now_s;
     peer.lost_once = true;
+    peer.lost_in_step = NewestKnownStep();
   }
   const std::string members = std::to_string(Members().size());
   if (alive) {
@@ -525,6 +563,13 @@ void AgentProtocol::OpenStep(StepIndex k, const std::optional<PendingRange>& ran
   }
   Recompute(k);
   if (r.own_range) EmitOwnContribution(r);
+}
+
+StepIndex AgentProtocol::NewestKnownStep() const {
+  StepIndex k = written_;
+  if (!records_.empty()) k = std::max(k, records_.rbegin()->first);
+  if (!pending_ranges_.empty()) k = std::max(k, pending_ranges_.rbegin()->first);
+  return k;
 }
 
 bool AgentProtocol::IsComplete(const Record& r) const {

@@ -93,6 +93,10 @@ class AgentProtocol {
     // a step at or before it, even on a range from the target's history that was measured
     // for its predecessor where this process starts too (the initial position).
     StepIndex resume_after = 0;
+    // How long a lapse of a peer's contribution writer is held before it counts as a loss
+    // (< 0: network.liveliness_grace_s, as for the target's writer). Longer where those
+    // writers renew their liveliness rarely (dds::Timings::peer_grace_s).
+    double peer_grace_s = -1.0;
   };
 
   // The config must outlive the protocol. Throws std::invalid_argument for an id outside
@@ -208,6 +212,7 @@ class AgentProtocol {
     bool lost_once = false;  // this writer was seen lost at least once
     std::optional<std::pair<StepIndex, Vector2>> last_position;  // (step, position)
     StepIndex last_step = 0;  // of its newest valid contribution
+    StepIndex lost_in_step = 0;  // the newest step this agent knew of when it saw it lost
   };
   struct PendingRange {
     RangeMsg msg;
@@ -221,6 +226,8 @@ class AgentProtocol {
   bool CanFinish(const Record& r, double now_s) const;
   void FinishStep(double now_s);
   bool IsComplete(const Record& r) const;
+  // The newest step this agent knows the target began (opened, or a range waiting).
+  StepIndex NewestKnownStep() const;
   // Whether a roll-call member whose contribution `r` lacks has been seen lost.
   bool MissesALostMember(const Record& r) const;
   void ApplyRange(Record& r, const RangeMsg& msg, bool unusable);

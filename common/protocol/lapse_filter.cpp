@@ -6,7 +6,8 @@
 namespace deif::protocol {
 
 template <typename Key>
-std::optional<bool> BasicLapseFilter<Key>::Report(const Key& writer, bool alive, double now_s) {
+std::optional<bool> BasicLapseFilter<Key>::Report(const Key& writer, bool alive, double now_s,
+                                                  double grace_s) {
   if (alive) {
     if (held_.erase(writer) > 0) {
       ++ignored_;
@@ -14,7 +15,7 @@ std::optional<bool> BasicLapseFilter<Key>::Report(const Key& writer, bool alive,
     }
     return true;
   }
-  const double due_s = std::max(now_s + grace_s_, hold_until_s_);
+  const double due_s = std::max(now_s + grace_s, hold_until_s_);
   if (due_s <= now_s) return false;
   held_.emplace(writer, due_s);  // a second report keeps the first due time
   return std::nullopt;

@@ -22,7 +22,11 @@ class BasicLapseFilter {
 
   // A liveliness change as DDS reported it. Returns the change to act on now: a loss is
   // held for the grace (nullopt); a return within the grace cancels it (nullopt).
-  std::optional<bool> Report(const Key& writer, bool alive, double now_s);
+  std::optional<bool> Report(const Key& writer, bool alive, double now_s) {
+    return Report(writer, alive, now_s, grace_s_);
+  }
+  // The same, with a grace of its own for this writer's loss.
+  std::optional<bool> Report(const Key& writer, bool alive, double now_s, double grace_s);
   // The held losses whose grace is over, oldest first: act on each as a loss.
   std::vector<Key> Due(double now_s);
   // Ends the grace of `writer`'s held loss at once (another writer took its identity, so it

@@ -463,6 +463,64 @@ TEST_CASE("A liveliness lapse shorter than network.liveliness_grace_s excludes n
                      [](const std::string& l) { return l.find("lost") != std::string::npos; }));
 }
 
+TEST_CASE("A peer's lapse is held for peer_grace_s, the target's for network.liveliness_grace_s",
+          "[protocol]") {
+  // Where the peers' writers renew their liveliness rarely (the tree exchange at large N),
+  // the agent holds their lapses longer (dds::Timings::peer_grace_s); the target's writer
+  // writes every step and keeps the configured grace.
+  ScriptedNetwork net(kThreeAgents);
+  const double grace_s = net.config.network.liveliness_grace_s;
+  net.peer_grace_s = 4.0 * grace_s;
+  for (AgentId id = 1; id <= 3; ++id) net.agents[id] = net.MakeAgent(id);
+  net.Start();
+  net.RunUntil(2);
+  const auto has = [&](const std::string& text) {
+    const auto& log = net.logs.at(1);
+    return std::any_of(log.begin(), log.end(), [&](const std::string& l) { return l.find(text) != std::string::npos; });
+  };
+  // WHEN agent 1 sees agent 3's writer and the target's lapse at once
+  net.Liveliness(1, 3, false);
+  net.Liveliness(1, deif::testing::kTarget, false);
+  net.AdvanceTime(1.5 * grace_s);
+  // THEN the target's lapse counts after the configured grace, agent 3's not yet
+  CHECK(has("the target is lost"));
+  CHECK(net.agents.at(1)->Members().size() == 3);
+  CHECK_FALSE(has("agent 3 lost"));
+  // AND agent 3's counts once it outlasts peer_grace_s
+  net.AdvanceTime(3.0 * grace_s);
+  CHECK(net.agents.at(1)->Members().size() == 2);
+  CHECK(has("agent 3 lost (liveliness)"));
+}
+
+TEST_CASE("A held lapse of a peer the target's roll call no longer names counts at once",
+          "[protocol]") {
+  // The longer peer grace spares a peer the rest of the network still hears; a peer the
+  // target dropped too (its state writer renews at every step) is gone.
+  ScriptedNetwork net(kThreeAgents);
+  const double grace_s = net.config.network.liveliness_grace_s;
+  net.peer_grace_s = 20.0 * grace_s;
+  for (AgentId id = 1; id <= 3; ++id) net.agents[id] = net.MakeAgent(id);
+  net.Start();
+  net.RunUntil(3);
+  const double killed_at = net.now;
+  // WHEN agent 3 is killed: everyone sees its writers lapse
+  net.Kill(3);
+  net.RunUntil(8);
+  // THEN agents 1 and 2 lost it well before the peer grace, once a roll call left it out
+  for (AgentId id : {1, 2}) {
+    INFO("agent " << id);
+    CHECK(net.agents.at(id)->Members().size() == 2);
+    const auto& log = net.logs.at(id);
+    CHECK(std::any_of(log.begin(), log.end(),
+                      [](const std::string& l) { return l.find("agent 3 lost (liveliness)") != std::string::npos; }));
+  }
+  CHECK(net.now - killed_at < net.peer_grace_s);
+  // AND a peer the target still names keeps its lapse held for the whole peer grace
+  net.Liveliness(1, 2, false);
+  net.RunUntil(12);
+  CHECK(net.agents.at(1)->Members().count(2) == 1);
+}
+
 TEST_CASE("A peer that leaves after its contribution to the last step is logged as finished, "
           "not lost", "[protocol]") {
   ScriptedNetwork net(kThreeAgents);  // 30 steps
@@ -1182,6 +1240,52 @@ TEST_CASE("A relayed contribution of a peer seen lost does not make it a member 
   REQUIRE(net.agents.at(1)->Members().count(3) == 0);
   net.agents.at(1)->OnContribution(ValidContributionFrom(net, 3, 2), KeyOf(3), net.now);
   CHECK(net.agents.at(1)->Members().count(3) == 1);
+}
+
+TEST_CASE("A relayed contribution to a step begun after the peer was seen lost makes it a "
+          "member again", "[protocol][tree]") {
+  // Fast DDS can leave a live writer lost in a reader's view, its return never reported
+  // (docs/FASTDDS_NOTES.md): a contribution nobody dead could have made proves it lives.
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  // GIVEN agent 1 saw agent 2's writer lost (past the grace) after step w
+  net.Liveliness(1, 2, false);
+  net.AdvanceTime(1.0);
+  REQUIRE(net.agents.at(1)->Members().count(2) == 0);
+  const StepIndex w = net.agents.at(1)->last_written_step();
+  // AND the run went on, agent 2's contributions to agent 1 held back (a relay brings them)
+  const auto to1 = [](const Envelope& e) {
+    return e.from == 2 && e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
+  };
+  for (int i = 0; i < 2000 && net.agents.at(1)->last_written_step() < w + 4; ++i) {
+    net.Pump(to1);
+    net.AdvanceTime(0.01);
+  }
+  REQUIRE(net.agents.at(1)->last_written_step() >= w + 4);
+  REQUIRE(net.agents.at(1)->Members().count(2) == 0);  // nothing of it came
+  const protocol::ContributionMsg before = ValidContributionFrom(net, 2, w);
+  std::optional<protocol::ContributionMsg> after;
+  for (const auto& c : net.ContributionsOf(2)) {
+    if (c.step >= w + 3) {
+      after = c;
+      break;
+    }
+  }
+  REQUIRE(after.has_value());
+  // WHEN a relay brings its contribution to step w (begun before it was seen lost)
+  net.agents.at(1)->OnContributions({{before, KeyOf(2)}}, net.now);
+  // THEN it stays out
+  CHECK(net.agents.at(1)->Members().count(2) == 0);
+  // WHEN a relay brings a contribution to a step begun after agent 1 saw it lost
+  net.DeliverBatch(1, {Envelope{2, 1, *after}});
+  // THEN it is a member again, and the log says why
+  CHECK(net.agents.at(1)->Members().count(2) == 1);
+  const auto& log = net.logs.at(1);
+  CHECK(std::any_of(log.begin(), log.end(), [&](const std::string& l) {
+    return l.find("agent 2 is alive again: it contributed to step " + std::to_string(after->step)) !=
+           std::string::npos;
+  }));
 }
 
 TEST_CASE("The roll call a relay waits for is the one the protocol accepted", "[protocol][tree]") {

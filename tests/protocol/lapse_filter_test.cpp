@@ -90,3 +90,17 @@ TEST_CASE("After this process was away, lapses count only once they outlast the 
     }
   }
 }
+
+TEST_CASE("A writer's lapse can have a grace of its own", "[protocol][lapse]") {
+  LapseFilter filter(0.2);
+  CHECK_FALSE(filter.Report(Writer(1), false, 10.0, 1.0).has_value());
+  CHECK_FALSE(filter.Report(Writer(2), false, 10.0).has_value());  // the filter's grace
+  CHECK(filter.NextDue() == Approx(10.2));
+  const auto first = filter.Due(10.5);
+  REQUIRE(first.size() == 1);
+  CHECK(first[0] == Writer(2));
+  CHECK(filter.NextDue() == Approx(11.0));
+  CHECK_FALSE(filter.Report(Writer(1), true, 10.9, 1.0).has_value());  // back within its own
+  CHECK(filter.ignored() == 1);
+  CHECK(filter.Due(100.0).empty());
+}

@@ -56,10 +56,13 @@ class ScriptedNetwork {
   }
 
   static constexpr protocol::RunToken kRun = 42;
+  // AgentProtocol::Options::peer_grace_s of the agents made after it is set (MakeAgent).
+  double peer_grace_s = -1.0;
 
   std::unique_ptr<AgentProtocol> MakeAgent(AgentId id, std::uint64_t token = 0) {
     AgentProtocol::Options options;
     options.run = kRun;
+    options.peer_grace_s = peer_grace_s;
     options.instance_token = token == 0 ? static_cast<std::uint64_t>(id) : token;
     return std::make_unique<AgentProtocol>(config, id, options);
   }
