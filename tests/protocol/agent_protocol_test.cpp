@@ -470,8 +470,7 @@ TEST_CASE("A peer's lapse is held for peer_grace_s, the target's for network.liv
   // writes every step and keeps the configured grace.
   ScriptedNetwork net(kThreeAgents);
   const double grace_s = net.config.network.liveliness_grace_s;
-  net.peer_grace_s = 4.0 * grace_s;
-  for (AgentId id = 1; id <= 3; ++id) net.agents[id] = net.MakeAgent(id);
+  net.SetPeerGrace(4.0 * grace_s);
   net.Start();
   net.RunUntil(2);
   const auto has = [&](const std::string& text) {
@@ -498,8 +497,7 @@ TEST_CASE("A held lapse of a peer the target's roll call no longer names counts 
   // target dropped too (its state writer renews at every step) is gone.
   ScriptedNetwork net(kThreeAgents);
   const double grace_s = net.config.network.liveliness_grace_s;
-  net.peer_grace_s = 20.0 * grace_s;
-  for (AgentId id = 1; id <= 3; ++id) net.agents[id] = net.MakeAgent(id);
+  net.SetPeerGrace(20.0 * grace_s);
   net.Start();
   net.RunUntil(3);
   const double killed_at = net.now;

@@ -58,6 +58,11 @@ class ScriptedNetwork {
   static constexpr protocol::RunToken kRun = 42;
   // AgentProtocol::Options::peer_grace_s of the agents made after it is set (MakeAgent).
   double peer_grace_s = -1.0;
+  // Makes every agent anew with this peer grace (before Start).
+  void SetPeerGrace(double grace_s) {
+    peer_grace_s = grace_s;
+    for (auto& [id, agent] : agents) agent = MakeAgent(id);
+  }
 
   std::unique_ptr<AgentProtocol> MakeAgent(AgentId id, std::uint64_t token = 0) {
     AgentProtocol::Options options;
