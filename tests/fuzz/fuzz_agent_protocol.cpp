@@ -94,7 +94,10 @@ bool Finite(const deif::Matrix2& m) { return m.allFinite(); }
 
 class Network {
  public:
-  explicit Network(const Config& config) : config_(config) {
+  // peer_grace_s: AgentProtocol::Options::peer_grace_s (< 0: the config's grace); relayed:
+  // contributions arrive as a relay's batches do (AgentProtocol::OnContributions).
+  Network(const Config& config, double peer_grace_s, bool relayed)
+      : config_(config), peer_grace_s_(peer_grace_s), relayed_(relayed) {
     for (AgentId id = 1; id <= config.agents.count; ++id) StartAgent(id);
     StartTarget(std::nullopt);
   }
@@ -207,6 +210,7 @@ class Network {
     AgentProtocol::Options options;
     options.run = kRun;
     options.instance_token = 1000u * static_cast<unsigned>(incarnation_[id]) + static_cast<unsigned>(id);
+    options.peer_grace_s = peer_grace_s_;
     agents_[id] = std::make_unique<AgentProtocol>(config_, id, options);
     agents_[id]->Start(now_);
     Collect(id);
@@ -245,7 +249,13 @@ class Network {
     }
     AgentProtocol& agent = *agents_.at(e.to);
     if (const auto* range = std::get_if<RangeMsg>(&e.message)) agent.OnRange(*range, e.from, now_);
-    if (const auto* c = std::get_if<ContributionMsg>(&e.message)) agent.OnContribution(*c, e.from, now_);
+    if (const auto* c = std::get_if<ContributionMsg>(&e.message)) {
+      if (relayed_) {
+        agent.OnContributions({{*c, e.from}}, now_);
+      } else {
+        agent.OnContribution(*c, e.from, now_);
+      }
+    }
     Collect(e.to);
   }
 
@@ -293,6 +303,8 @@ class Network {
   }
 
   const Config& config_;
+  const double peer_grace_s_;
+  const bool relayed_;
   std::map<AgentId, std::unique_ptr<AgentProtocol>> agents_;
   std::unique_ptr<TargetProtocol> target_;
   std::map<int, int> incarnation_;
@@ -447,7 +459,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   FuzzInput in(data, size);
   const Config& config = ConfigOf(in.Byte());
   const int nodes = config.agents.count + 1;
-  Network net(config);
+  const std::uint8_t mode = in.Byte();
+  constexpr double kPeerGraces[] = {-1.0, 0.3, 1.0, 5.0};
+  Network net(config, kPeerGraces[mode % 4], (mode & 4u) != 0);
 
   while (!in.empty()) {
     const std::uint8_t op = in.Byte();
