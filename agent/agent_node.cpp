@@ -38,9 +38,9 @@ StepIndex LastStepWritten(const dds::ProcessContext& context, AgentId id) {
 }
 
 protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& context, AgentId id,
-                                                 std::uint64_t token) {
+                                                 std::uint64_t token, const dds::Timings& timings) {
   protocol::AgentProtocol::Options options;
-  options.peer_grace_s = dds::EffectiveTimings(context.config).peer_grace_s;
+  options.peer_grace_s = timings.peer_grace_s;
   options.run = protocol::RunTokenOf(context.run_name);
   options.instance_token = token;
   options.resume_after = LastStepWritten(context, id);
@@ -54,8 +54,9 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       config_(context.config),
       id_(id),
       instance_token_(dds::RandomInstanceToken()),
+      timings_(dds::EffectiveTimings(context.config)),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
-      protocol_(context.config, id, ProtocolOptions(context, id, instance_token_)),
+      protocol_(context.config, id, ProtocolOptions(context, id, instance_token_, timings_)),
       discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
@@ -74,8 +75,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
     // to the parent's as the tree changes. It starts in the tree of every agent of the run.
     // A parent that fell silent stays out of this agent's tree for twice the time every
     // agent's membership takes to lose a dead agent (its writers' lease plus the grace).
-    const dds::Timings timings = dds::EffectiveTimings(config_);
-    const double lost_after_s = timings.liveliness_lease_s + timings.peer_grace_s;
+    const double lost_after_s = timings_.liveliness_lease_s + timings_.peer_grace_s;
     tree_.emplace(config_, protocol::TreeExchange::Options{id_, protocol::RunTokenOf(context.run_name),
                                                             node_.WriterKey(dds::Topic::kContribution),
                                                             2.0 * lost_after_s});
@@ -93,12 +93,11 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
                      config_.network.domain_id, instance_token_);
   if (tree_) {
-    const dds::Timings timings = dds::EffectiveTimings(config_);
     context_.log->info("exchange: tree, fan-out {}, parent {}; a silent peer is lost after {:.2f} s "
                        "(lease {:.2f} s, renewed every {:.2f} s, grace {:.2f} s) (docs/SCALING.md)",
                        EffectiveTreeFanout(config_), ParentName(tree_->place().parent),
-                       timings.liveliness_lease_s + timings.peer_grace_s, timings.liveliness_lease_s,
-                       timings.liveliness_lease_s / timings.assertions_per_lease, timings.peer_grace_s);
+                       timings_.liveliness_lease_s + timings_.peer_grace_s, timings_.liveliness_lease_s,
+                       timings_.liveliness_lease_s / timings_.assertions_per_lease, timings_.peer_grace_s);
   } else {
     context_.log->info("exchange: all to all");
   }
@@ -168,7 +167,7 @@ int AgentNode::Run() {
       // This process was frozen or starved: the lapses it now sees are of its own making
       // (it read nothing), for as long as its peers take to renew their liveliness.
       const double hold_s =
-          std::max(dds::EffectiveTimings(config_).liveliness_lease_s, EffectiveRelayLeaseS(config_)) +
+          std::max(timings_.liveliness_lease_s, EffectiveRelayLeaseS(config_)) +
           config_.network.liveliness_grace_s;
       context_.log->info("the loop stood still for {:.2f} s: peers' lapses count only after {:.2f} s more",
                          now_s - last_loop_s_, hold_s);
@@ -415,7 +414,7 @@ void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
 double AgentNode::AwayAfterS() const {
   // The loop wakes at least every kMaxWaitS; away longer than a lease of its peers' writers,
   // they lapse in its view.
-  return std::max(2.0 * kMaxWaitS, dds::EffectiveTimings(config_).liveliness_lease_s);
+  return std::max(2.0 * kMaxWaitS, timings_.liveliness_lease_s);
 }
 
 std::string AgentNode::ParentName(std::optional<AgentId> parent) {

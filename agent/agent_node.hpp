@@ -71,6 +71,7 @@ class AgentNode : public dds::Application {
   const Config& config_;
   const AgentId id_;
   const std::uint64_t instance_token_;
+  const dds::Timings timings_;  // the config's, as the network's size makes them (EffectiveTimings)
   dds::Node node_;
   protocol::AgentProtocol protocol_;
   std::optional<protocol::TreeExchange> tree_;  // network.exchange: tree

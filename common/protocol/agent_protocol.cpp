@@ -263,6 +263,7 @@ void AgentProtocol::ConfirmLapses(double now_s) {
   // target, whose view of each agent (its state writer) is renewed at every step, saw it
   // gone too. The longer peer grace only spares peers the rest of the network still hears
   // (docs/PROTOCOL.md, "Renewals that are rare").
+  if (!lapses_.NextDue()) return;  // none held: nothing to end (at every range and wake-up)
   const std::vector<AgentId>* roll_call = nullptr;  // the newest: of a range waiting, or a step
   if (!pending_ranges_.empty() && !pending_ranges_.rbegin()->second.msg.roll_call.empty()) {
     roll_call = &pending_ranges_.rbegin()->second.msg.roll_call;
