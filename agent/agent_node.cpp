@@ -194,6 +194,12 @@ int AgentNode::Run() {
     protocol_.OnTimer(now_s);
     Pump();
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
+    if (dds::RestartForLostPorts(node_, *context_.log, "after step " + std::to_string(protocol_.last_written_step()),
+                                 watching_ports_)) {
+      WriteCounters();
+      restart_in_place_ = true;
+      return protocol::kExitRuntimeError;  // not returned: it starts again in place
+    }
     if (DiscoveryStoppedShort(now_s)) {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again

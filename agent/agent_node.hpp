@@ -87,6 +87,7 @@ class AgentNode : public dds::Application {
   std::atomic<bool> stop_requested_{false};
   std::optional<int> exit_code_;
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
+  bool watching_ports_ = true;     // dds::RestartForLostPorts
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
 };

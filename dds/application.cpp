@@ -28,6 +28,7 @@
 
 #include "common/protocol/agent_protocol.hpp"
 #include "common/protocol/messages.hpp"
+#include "dds/node.hpp"
 #include "dds/security.hpp"
 
 namespace deif::dds {
@@ -265,7 +266,6 @@ void Carry(const protocol::Finish& action, spdlog::logger& log, std::optional<in
 }
 
 std::chrono::steady_clock::time_point WakeBy(std::optional<double> deadline_s, double max_wait_s) {
-  using Clock = std::chrono::steady_clock;
   auto wake = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(max_wait_s));
   if (deadline_s) {
     const auto deadline = Clock::time_point(std::chrono::duration_cast<Clock::duration>(
@@ -315,6 +315,21 @@ bool MayRestartInPlace(spdlog::logger& log, const std::string& why, const std::s
   }
   log.error("{}; {} it starts again in place", why, when);
   return true;
+}
+
+bool RestartForLostPorts(Node& node, spdlog::logger& log, const std::string& when, bool& watching) {
+  if (!watching) return false;
+  const std::vector<int> lost = node.PortsLost();
+  if (lost.empty()) return false;
+  std::string ports;
+  for (int port : lost) ports += (ports.empty() ? "" : ", ") + std::to_string(port);
+  const std::string why =
+      std::string("a peer replaced this process's shared-memory port") + (lost.size() > 1 ? "s " : " ") + ports +
+      " (Fast DDS took it for a dead process's): whoever opened it since writes where this process does not read "
+      "(docs/FASTDDS_NOTES.md, \"A port replaced under its listener\")";
+  if (MayRestartInPlace(log, why, when)) return true;
+  watching = false;  // said once; it goes on as it is
+  return false;
 }
 
 int RestartsInPlace() {

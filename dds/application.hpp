@@ -107,6 +107,14 @@ constexpr const char* kReceiveStuck =
     "this process hears nothing more: a shared-memory receive thread of Fast DDS is stuck on a message of "
     "a dead peer (docs/FASTDDS_NOTES.md)";
 
+class Node;  // dds/node.hpp
+
+// Whether `node` lost a shared-memory port to a peer (Node::PortsLost: a peer replaced it
+// under this process, which no longer hears whoever opens it since) and may start again in
+// place for it (logged, as MayRestartInPlace). When it may not, `watching` becomes false and
+// the process goes on as it is. `when` as for MayRestartInPlace.
+bool RestartForLostPorts(Node& node, spdlog::logger& log, const std::string& when, bool& watching);
+
 // A protocol's log line, at its level, through the process logger.
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);
 // The actions both protocols produce: a log line; the end of the process (its exit code is

@@ -47,6 +47,7 @@
 #include "dds/conversions.hpp"
 #include "dds/locked_key.hpp"
 #include "dds/security.hpp"
+#include "dds/shm_ports.hpp"
 #include "deifPubSubTypes.h"
 
 namespace deif::dds {
@@ -360,6 +361,10 @@ std::int32_t FreshShmParticipantId(int domain_id) {
   return -1;
 }
 
+// How long a shared-memory port's listener may stay still before Fast DDS takes the port for
+// a dead process's (ParticipantQos).
+double ShmPortCheckS(const Config& config) { return std::max(1.0, config.network.participant_lease_s); }
+
 // What a participant announces as its user data: the partition of its run.
 std::string RunAnnouncement(const std::string& run_name) { return "deif." + run_name; }
 
@@ -405,8 +410,7 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
       // long the network waits for a silent process anyway: the configured one, not the
       // longer one of a large network (EffectiveTimings): with that (20.8 s at N = 64)
       // every process outlived the run's end by 10-20 s, its exit held up by this check.
-      shm->healthy_check_timeout_ms(static_cast<std::uint32_t>(
-          std::max(1000.0, 1000.0 * network.participant_lease_s)));
+      shm->healthy_check_timeout_ms(static_cast<std::uint32_t>(1000.0 * ShmPortCheckS(config)));
       qos.transport().user_transports.push_back(shm);
       if (qos.wire_protocol().participant_id < 0) {
         qos.wire_protocol().participant_id = FreshShmParticipantId(network.domain_id);
@@ -772,6 +776,9 @@ struct Node::Impl {
   bool filters_registered = true;
   fdds::WaitSet waitset;
   fdds::GuardCondition guard;
+  // The shared-memory ports this participant listens on (PortsLost), checked once a second.
+  std::optional<ShmPortWatch> port_watch;
+  Clock::time_point next_port_check{};
 
   std::mutex events_mutex;
   std::vector<LivelinessChange> liveliness_events;  // guarded by events_mutex
@@ -887,6 +894,10 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
     throw std::runtime_error("cannot create the DDS publisher/subscriber");
   }
   d.waitset.attach_condition(d.guard);
+  // Fast DDS opened this participant's ports (and took their locks) as it created it. A
+  // peer's reset that Fast DDS itself repairs moves the listener within a third of the port
+  // check: only a port replaced for a whole check is lost.
+  d.port_watch.emplace(ShmPortWatch::ListenedPorts(), ShmPortCheckS(config));
 }
 
 Node::~Node() {
@@ -1284,6 +1295,19 @@ std::uint64_t Node::ParticipantsVersion() const { return impl_->participant_list
 std::uint64_t Node::EndpointsHeard() const { return impl_->participant_listener.EndpointsHeard(); }
 
 bool Node::ReceiveStuck() { return g_receive_stuck.load(); }
+
+std::vector<int> Node::ShmPortsListened() const {
+  return impl_->port_watch ? impl_->port_watch->ports() : std::vector<int>{};
+}
+
+std::vector<int> Node::PortsLost() {
+  Impl& d = *impl_;
+  if (!d.port_watch || d.port_watch->ports().empty()) return {};
+  const Clock::time_point now = Clock::now();
+  if (now < d.next_port_check) return {};
+  d.next_port_check = now + std::chrono::seconds(1);
+  return d.port_watch->Lost(ToSeconds(now));
+}
 
 long Node::DroppedByIdRange() const { return impl_->filter_factory.dropped.load(); }
 

@@ -136,6 +136,15 @@ class Node {
   // receive loop stuck on a dead writer's segment"): the process hears nothing more on that
   // port. A process-wide fact, read from Fast DDS's log; only a new participant hears again.
   static bool ReceiveStuck();
+  // The shared-memory ports this participant listens on (none over UDPv4 only).
+  std::vector<int> ShmPortsListened() const;
+  // Those of them that a peer replaced under this process (it removed the port's segment and
+  // made a new one, as Fast DDS 2.9.1 does with a port it takes for a dead process's) and
+  // that stayed replaced for a whole port check (dds/shm_ports.hpp): every peer that opens
+  // such a port from then on writes where this process does not read. Empty while it reads
+  // them all. Checks at most once a second; only a new participant hears those peers again
+  // (docs/FASTDDS_NOTES.md, "A port replaced under its listener").
+  std::vector<int> PortsLost();
   // Samples this node's id_range readers dropped (keyed to an id outside the range).
   long DroppedByIdRange() const;
   // Makes this participant's writers send every sample, as another vendor's or a hostile

@@ -160,6 +160,12 @@ int TargetNode::Run() {
                                                  "at step " + std::to_string(protocol_.current_step()));
       return protocol::kExitRuntimeError;  // the exit code when it does not start again
     }
+    if (dds::RestartForLostPorts(node_, *context_.log, "at step " + std::to_string(protocol_.current_step()),
+                                 watching_ports_)) {
+      WriteCounters();
+      restart_in_place_ = true;  // resumes after the agents' newest step, as above
+      return protocol::kExitRuntimeError;
+    }
   }
   const double elapsed_s = std::chrono::duration<double>(dds::Clock::now() - started).count();
   context_.log->info("{} at step {} after {:.3f} s; liveliness lapses forgiven {}",

@@ -60,6 +60,7 @@ class TargetNode : public dds::Application {
   std::optional<RangesCsv> ranges_csv_;
   std::atomic<bool> stop_requested_{false};
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
+  bool watching_ports_ = true;     // dds::RestartForLostPorts
   std::optional<int> exit_code_;
   std::mutex control_mutex_;
   std::deque<StepIndex> go_steps_;  // guarded by control_mutex_

@@ -241,6 +241,67 @@ def test_frozen_while_a_peer_dies(work, domain, monkeypatch):
             f"agent {j}: {len(complete)} of {len(last)} steps fused 3; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def listened_ports(pid):
+    """The unicast shared-memory ports process `pid` listens on: the port lock files
+    (/dev/shm/fastrtps_port<P>_el) it holds open."""
+    ports = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        m = re.fullmatch(r"/dev/shm/fastrtps_port(\d+)_el", target)
+        if m:
+            ports.add(int(m.group(1)))
+    return sorted(ports)
+
+
+def test_port_replaced_under_the_target(work, domain):
+    """Shared memory, lock-step. At step 50 the target's unicast ports are replaced as a
+    peer's Fast DDS replaces a port it takes for a dead process's ("Zombie. Reset the port":
+    the segment's name removed, a new segment made by the next process that opens it), and
+    agent 2 is killed and restarted. The target goes on reading its old segments and the
+    restarted agent writes into the new ones, so the target would never hear it and it would
+    never rejoin; the target sees its ports replaced, starts again in place with a new
+    participant (docs/FASTDDS_NOTES.md, "A port replaced under its listener"), and agent 2
+    rejoins: it writes rows again and the four agents agree at the end."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=100000,
+                            domain=domain, overrides=["network.transport=shm"], progress=False)
+    rejoined_after = None
+    try:
+        lau.start()
+        lau.wait_for_step(50)
+        ports = listened_ports(lau.procs["target"].popen.pid)
+        assert len(ports) == 2, ports  # metatraffic and user unicast
+        for port in ports:
+            os.remove(f"/dev/shm/fastrtps_port{port}")
+        lau.restart_agent(2)
+        restarted_at, started = lau.current_step(), time.time()
+        while time.time() < started + 60:
+            lau.service()
+            last = artefacts.last_row(os.path.join(lau.out_dir, "agent_2.csv"))
+            if last and int(last["step"]) > restarted_at + 10:
+                rejoined_after = time.time() - started
+                break
+            time.sleep(0.05)
+        if rejoined_after is not None:
+            lau.wait_for_step(lau.current_step() + 100)
+    finally:
+        lau.terminate_all()
+        res = lau.finish()
+    with open(os.path.join(res.out_dir, "logs", "target.log"), errors="replace") as f:
+        log = f.read()
+    assert rejoined_after is not None, \
+        f"agent 2 never rejoined; the target's log:\n{log[-3000:]}\nagent 2:\n{log_excerpt(res.out_dir, 2)}"
+    print(f"agent 2 rejoined {rejoined_after:.1f} s after its restart")
+    assert "replaced this process's shared-memory port" in log and "starts again in place" in log, log[-3000:]
+    by_step = {j: {r["step"]: r for r in rows(res.out_dir, j)} for j in range(1, 5)}
+    common = sorted(set.intersection(*(set(v) for v in by_step.values())), key=int)
+    for k in common[-21:-1]:  # the run was stopped mid-step: not the last
+        xs = {(by_step[j][k]["x_est"], by_step[j][k]["y_est"]) for j in range(1, 5)}
+        assert len(xs) == 1, f"agents disagree at step {k}: {xs}"
+
+
 def test_restart_in_place(work, domain, monkeypatch):
     """A process that finds its receive stuck for good (docs/FASTDDS_NOTES.md, "A receive loop
     stuck on a dead writer's segment") starts again in place: DEIF_FAULT_DEAF makes agent 3
