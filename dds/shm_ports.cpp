@@ -36,7 +36,7 @@ std::optional<int> ListenedPort(const std::string& fd_target, const std::string&
   if (EndsWith(target, kDeleted)) target.resize(target.size() - std::string(kDeleted).size());
   const std::string prefix = dir + "/" + kPortPrefix;
   if (target.compare(0, prefix.size(), prefix) != 0) return std::nullopt;
-  if (!EndsWith(target, "_el") && !EndsWith(target, "_sl")) return std::nullopt;
+  if (!EndsWith(target, "_el")) return std::nullopt;
   const std::string digits = target.substr(prefix.size(), target.size() - prefix.size() - 3);
   if (digits.empty() || digits.size() > 6 || digits.find_first_not_of("0123456789") != std::string::npos) {
     return std::nullopt;

@@ -1,8 +1,8 @@
 // Whether this process still reads the shared-memory ports it listens on.
 //
 // A Fast DDS 2.9.1 shared-memory port is a segment /dev/shm/fastrtps_port<P> that its
-// listening process maps, with a lock file (fastrtps_port<P>_el for a unicast port, _sl for a
-// shared one) that the listener holds. A peer that finds the port broken or takes it for a
+// listening process maps, with a lock file (fastrtps_port<P>_el for a unicast port) that the
+// listener holds. A peer that finds the port broken or takes it for a
 // dead process's ("Zombie. Reset the port", "NOT Healthy ... Removed") removes the segment's
 // name and creates a new segment under it. The listener keeps the old mapping: if Fast DDS
 // does not move it to the new segment (it does when the old one was marked broken, not when
@@ -20,8 +20,11 @@
 
 namespace deif::dds {
 
-// The port number P of a lock file fastrtps_port<P>_el or _sl in `dir` that a process holds
-// open (a link of /proc/<pid>/fd, possibly ending in " (deleted)"); nullopt for any other file.
+// The port number P of a unicast port's lock file fastrtps_port<P>_el in `dir` that a process
+// holds open (a link of /proc/<pid>/fd, possibly ending in " (deleted)"); nullopt for any other
+// file. Not the discovery multicast port (_sl, shared by every process): its announcements
+// also travel over UDPv4 multicast, while a peer on the same host reaches a unicast port
+// over shared memory only.
 std::optional<int> ListenedPort(const std::string& fd_target, const std::string& dir);
 // The inodes of the mappings of `path` in a /proc/<pid>/maps text (those of a removed file
 // included: " (deleted)").
@@ -33,7 +36,7 @@ class ShmPortWatch {
   // without a break (Fast DDS moves a listener to the new segment by itself within a third
   // of its port check timeout when it can: that is not a loss).
   ShmPortWatch(std::vector<int> ports, double hold_s, std::string dir = "/dev/shm");
-  // The ports this process listens on now: the lock files of `dir` it holds open.
+  // The unicast ports this process listens on now: the lock files of `dir` it holds open.
   static std::vector<int> ListenedPorts(const std::string& dir = "/dev/shm");
   // The watched ports whose file in `dir` is gone or is not a segment this process maps.
   std::vector<int> Replaced() const;
