@@ -227,6 +227,7 @@ class RestartCommand {
     for (std::string& a : args_) argv_.push_back(a.data());
     argv_.push_back(nullptr);
     ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
+    ::setenv(kShmPortsUsedVariable, ShmPortsUsedSoFar().c_str(), 1);
     CloseOnExec();
   }
   RestartCommand(const RestartCommand&) = delete;

@@ -17,6 +17,7 @@
 #include <random>
 #include <regex>
 #include <set>
+#include <sstream>
 #include <stdexcept>
 #include <thread>
 
@@ -338,6 +339,24 @@ void InstallDdsLog() {
   });
 }
 
+// The ports of a comma-separated list ("42162,42163"); what is not a port is skipped.
+std::set<int> PortsOfList(const char* list) {
+  std::set<int> ports;
+  if (list == nullptr) return ports;
+  std::istringstream items(list);
+  std::string item;
+  while (std::getline(items, item, ',')) {
+    if (!item.empty() && item.size() <= 5 && item.find_first_not_of("0123456789") == std::string::npos) {
+      ports.insert(std::stoi(item));
+    }
+  }
+  return ports;
+}
+
+// The unicast shared-memory ports of the participant made last by this process (Node).
+std::mutex g_listened_mutex;
+std::vector<int> g_listened_ports;
+
 // A participant id whose shared-memory ports (/dev/shm/fastrtps_port<port>, the unicast
 // ports of RTPS's default port mapping) no process has created: a process restarted after
 // kill -9 must not reopen the ports its dead predecessor left. Fast DDS finds such a port
@@ -346,17 +365,23 @@ void InstallDdsLog() {
 // nothing over shared memory (docs/FASTDDS_NOTES.md, "Shared memory and restarts"). A taken
 // port found anyway (two processes starting at once) is moved on by Fast DDS itself. -1
 // (Fast DDS picks) when every id in the domain's range has files.
+// Nor the ports this process listened on before it started again in place
+// (kShmPortsUsedVariable): when a peer had replaced such a port under it, the process's
+// leaving removed the replacement's name, and a new participant on the same id would make
+// yet another segment there while its peers write into the one they mapped
+// (docs/FASTDDS_NOTES.md, "A port replaced under its listener").
 std::int32_t FreshShmParticipantId(int domain_id) {
   // RTPS default port mapping: PB 7400, DG 250, PG 2, d1 10 (metatraffic unicast), d3 11.
   constexpr int kPortBase = 7400, kDomainGain = 250, kIdGain = 2, kMetaOffset = 10;
   constexpr int kMaxId = (kDomainGain - kMetaOffset) / kIdGain - 1;  // ports stay in the domain
-  const auto exists = [](int port) {
+  const std::set<int> used = PortsOfList(std::getenv(kShmPortsUsedVariable));
+  const auto taken = [&used](int port) {
     std::error_code ec;
-    return std::filesystem::exists("/dev/shm/fastrtps_port" + std::to_string(port), ec);
+    return used.count(port) > 0 || std::filesystem::exists("/dev/shm/fastrtps_port" + std::to_string(port), ec);
   };
   for (int id = 0; id <= kMaxId; ++id) {
     const int meta = kPortBase + kDomainGain * domain_id + kMetaOffset + kIdGain * id;
-    if (!exists(meta) && !exists(meta + 1)) return id;
+    if (!taken(meta) && !taken(meta + 1)) return id;
   }
   return -1;
 }
@@ -898,6 +923,8 @@ Node::Node(const Config& config, const std::string& participant_name, const std:
   // peer's reset that Fast DDS itself repairs moves the listener within a third of the port
   // check: only a port replaced for a whole check is lost.
   d.port_watch.emplace(ShmPortWatch::ListenedPorts(), ShmPortCheckS(config));
+  std::lock_guard<std::mutex> lock(g_listened_mutex);
+  g_listened_ports = d.port_watch->ports();
 }
 
 Node::~Node() {
@@ -1295,6 +1322,17 @@ std::uint64_t Node::ParticipantsVersion() const { return impl_->participant_list
 std::uint64_t Node::EndpointsHeard() const { return impl_->participant_listener.EndpointsHeard(); }
 
 bool Node::ReceiveStuck() { return g_receive_stuck.load(); }
+
+std::string ShmPortsUsedSoFar() {
+  std::set<int> ports = PortsOfList(std::getenv(kShmPortsUsedVariable));
+  {
+    std::lock_guard<std::mutex> lock(g_listened_mutex);
+    ports.insert(g_listened_ports.begin(), g_listened_ports.end());
+  }
+  std::string list;
+  for (int port : ports) list += (list.empty() ? "" : ",") + std::to_string(port);
+  return list;
+}
 
 std::vector<int> Node::ShmPortsListened() const {
   return impl_->port_watch ? impl_->port_watch->ports() : std::vector<int>{};

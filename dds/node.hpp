@@ -166,6 +166,15 @@ class Node {
   std::unique_ptr<Impl> impl_;
 };
 
+// The environment variable that lists, comma-separated, the shared-memory ports this process
+// listened on before it started again in place (docs/RUNNING.md, "Restarting in place"): a
+// new participant takes no id whose ports it lists (docs/FASTDDS_NOTES.md, "A port replaced
+// under its listener").
+constexpr const char* kShmPortsUsedVariable = "DEIF_SHM_PORTS_USED";
+// Its value for the next start: the ports it lists now and those of this process's newest
+// participant.
+std::string ShmPortsUsedSoFar();
+
 // The timings a network of config.agents.count agents actually uses (dds/node.cpp): the
 // configured ones, unless the N^2 liveliness, heartbeat and participant-announcement traffic
 // would exceed what one busy host can carry; then a longer lease, fewer assertions, a longer

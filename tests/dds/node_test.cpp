@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <chrono>
 #include <functional>
+#include <cstdlib>
 #include <stdexcept>
+#include <string>
 #include <variant>
 #include <vector>
 
@@ -197,4 +199,40 @@ TEST_CASE("a node sees its run's target up before the target has any endpoint, a
   }
   // Deleted: it said goodbye.
   CHECK(Within(10.0, agent, [&] { return !agent.TargetUp(); }));
+}
+
+TEST_CASE("a participant started again in place takes none of its predecessor's shared-memory ports",
+          "[dds][node]") {
+  // docs/FASTDDS_NOTES.md, "A port replaced under its listener": the ports listened on before
+  // the restart are listed in DEIF_SHM_PORTS_USED, whether or not their files still exist.
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: shm}\n", "node_test");
+  ::unsetenv(deif::dds::kShmPortsUsedVariable);
+  std::vector<int> first;
+  std::string used;
+  {
+    deif::dds::Node node(config, "node-test-agent-1", "node_ports");
+    first = node.ShmPortsListened();
+    used = deif::dds::ShmPortsUsedSoFar();
+  }  // deleted: its port files are gone, so the lowest free id is its own again
+  REQUIRE(first.size() == 2);  // metatraffic and user unicast
+  CHECK(used == std::to_string(first[0]) + "," + std::to_string(first[1]));
+  {
+    deif::dds::Node again(config, "node-test-agent-1", "node_ports");
+    CHECK(again.ShmPortsListened() == first);  // without the list: the same ports
+  }
+  ::setenv(deif::dds::kShmPortsUsedVariable, used.c_str(), 1);
+  {
+    deif::dds::Node again(config, "node-test-agent-1", "node_ports");
+    const std::vector<int> ports = again.ShmPortsListened();
+    REQUIRE(ports.size() == 2);
+    CHECK(std::find(ports.begin(), ports.end(), first[0]) == ports.end());
+    CHECK(std::find(ports.begin(), ports.end(), first[1]) == ports.end());
+    // The next restart avoids both participants' ports.
+    const std::string next = deif::dds::ShmPortsUsedSoFar();
+    for (int port : {first[0], first[1], ports[0], ports[1]}) {
+      CHECK(next.find(std::to_string(port)) != std::string::npos);
+    }
+  }
+  ::unsetenv(deif::dds::kShmPortsUsedVariable);
 }
