@@ -198,7 +198,7 @@ int AgentNode::Run() {
                                  watching_ports_)) {
       WriteCounters();
       restart_in_place_ = true;
-      return protocol::kExitRuntimeError;  // not returned: it starts again in place
+      return protocol::kExitRuntimeError;  // the exit code if it cannot start again
     }
     if (DiscoveryStoppedShort(now_s)) {
       WriteCounters();

@@ -363,13 +363,13 @@ std::vector<int> g_listened_ports;
 // unhealthy (nobody drains it), removes the segment and creates a new one under the same
 // name, while the live peers keep writing into the old mapping: the newcomer then hears
 // nothing over shared memory (docs/FASTDDS_NOTES.md, "Shared memory and restarts"). A taken
-// port found anyway (two processes starting at once) is moved on by Fast DDS itself. -1
-// (Fast DDS picks) when every id in the domain's range has files.
-// Nor the ports this process listened on before it started again in place
+// port found anyway (two processes starting at once) is moved on by Fast DDS itself. Nor an
+// id whose ports this process listened on before it started again in place
 // (kShmPortsUsedVariable): when a peer had replaced such a port under it, the process's
 // leaving removed the replacement's name, and a new participant on the same id would make
 // yet another segment there while its peers write into the one they mapped
-// (docs/FASTDDS_NOTES.md, "A port replaced under its listener").
+// (docs/FASTDDS_NOTES.md, "A port replaced under its listener"). -1 (Fast DDS picks) when
+// every id in the domain's range is taken.
 std::int32_t FreshShmParticipantId(int domain_id) {
   // RTPS default port mapping: PB 7400, DG 250, PG 2, d1 10 (metatraffic unicast), d3 11.
   constexpr int kPortBase = 7400, kDomainGain = 250, kIdGain = 2, kMetaOffset = 10;
