@@ -204,6 +204,15 @@ def _shm_in_use():
     return used
 
 
+def shm_domain_in_use(domain):
+    """Whether a live process on this host uses DDS domain `domain` over shared memory: it maps
+    or holds open a shared-memory port of the domain (RTPS's port mapping gives domain d the
+    ports 7400 + 250 d up to 7400 + 250 (d + 1) - 1)."""
+    base = 7400 + 250 * domain
+    ports = {f"fastrtps_port{p}" for p in range(base, base + 250)}
+    return not ports.isdisjoint(_shm_in_use())
+
+
 def shm_cleanup(before):
     """Removes the Fast DDS shared-memory files our run left (kill -9 leaves them), a port's
     or segment's files together and only when no live process maps or holds open any of
@@ -454,6 +463,12 @@ class Launcher:
             self._say(f"live view: the observer did not start; see {p.log_path}")
 
     def start(self):
+        if self.hosts_count == 1 and self.cfg["network"]["transport"] == "shm" and shm_domain_in_use(self.domain):
+            self._say(f"warning: another process on this host already uses DDS domain {self.domain} over "
+                      "shared memory (another run?). Runs of one domain discover each other's processes: when one "
+                      "ends, the other's processes can lose their receive to its last messages and start "
+                      "again in place. Give each run its own --domain (docs/RUNNING.md, \"Several runs on "
+                      "one host\").")
         if self.hosts_count > 1:
             self.hosts = hosts_mod.Hosts(self.hosts_count, self.domain).create()
             for h in range(1, self.hosts_count + 1):

@@ -183,3 +183,23 @@ def test_shm_cleanup_keeps_every_file_of_a_port_some_process_uses(tmp_path, monk
     assert left == set(live_port + live_segment + ["fastrtps_port7000", "unrelated_file"])
     assert launcher.shm_cleanup(before) == len(live_port + live_segment)  # nobody uses them now
     assert set(os.listdir(d)) == {"fastrtps_port7000", "unrelated_file"}
+
+
+def test_a_domain_in_use_over_shared_memory_is_seen(tmp_path, monkeypatch):
+    """deif-run warns when another process on this host uses its domain over shared memory
+    (docs/RUNNING.md, "Several runs on one host"): it maps or holds open one of the domain's
+    ports, 7400 + 250 x domain and the 249 after it."""
+    d = str(tmp_path)
+    monkeypatch.setattr(launcher, "SHM_DIR", d)
+    _touch(d, "fastrtps_port55160")     # domain 191's first unicast port, nobody using it
+    _touch(d, "fastrtps_port55160_el")
+    _touch(d, "fastrtps_port55649_el")  # domain 192's last
+    assert not launcher.shm_domain_in_use(191)
+    lock = open(os.path.join(d, "fastrtps_port55649_el"), "rb")  # held open, like a listener's lock
+    try:
+        assert launcher.shm_domain_in_use(192)
+        assert not launcher.shm_domain_in_use(191)
+        assert not launcher.shm_domain_in_use(193)
+    finally:
+        lock.close()
+    assert not launcher.shm_domain_in_use(192)
