@@ -870,10 +870,25 @@ InfoState AgentProtocol::BaseOf(Record& r) {
       for (const InfoState* s : distinct) seen = seen || SameInfoState(*s, held.msg.basis);
       if (!seen) distinct.push_back(&held.msg.basis);
     }
+    // The fold is a function of the distinct posteriors in this order alone: a contribution
+    // that repeats one already held (most of a merged step's: the agents that agreed carry
+    // the same posterior) leaves it as it was. In a run that fell behind, many contributions
+    // of a merged step come late one by one, and folding them all again for each was a large
+    // part of an agent's work (docs/BENCHMARKS.md, "A run that falls behind stays behind").
+    const bool same = r.merge_base && r.merge_folded.size() == distinct.size() &&
+                      std::equal(distinct.begin(), distinct.end(), r.merge_folded.begin(),
+                                 [](const InfoState* a, const InfoState& b) { return SameInfoState(*a, b); });
+    if (same) {
+      r.merge_base_held = r.held.size();
+      return *r.merge_base;
+    }
+    ++merges_computed_;
     InfoState merged = *distinct.front();
     for (std::size_t i = 1; i < distinct.size(); ++i) {
       merged = CovarianceIntersection(merged, *distinct[i]);
     }
+    r.merge_folded.clear();
+    for (const InfoState* s : distinct) r.merge_folded.push_back(*s);
     if (!r.merged && distinct.size() > 1) {
       r.merged = true;
       ++counters_.merges;

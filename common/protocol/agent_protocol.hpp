@@ -155,6 +155,9 @@ class AgentProtocol {
   const AgentCounters& counters() const { return counters_; }
   // Liveliness lapses that ended within network.liveliness_grace_s: a peer slow, not gone.
   long lapses_forgiven() const { return lapses_.ignored(); }
+  // How many merges by covariance intersection were computed (BaseOf): once per step and
+  // distinct set of posteriors its contributions carry, not once per contribution.
+  long merges_computed() const { return merges_computed_; }
   const Vector2& position() const { return position_m_; }
   // The posterior of step k while k is within the history.
   std::optional<InfoState> PosteriorOf(StepIndex k) const;
@@ -170,6 +173,7 @@ class AgentProtocol {
   std::uint64_t membership_version() const { return membership_version_; }
 
  private:
+  long merges_computed_ = 0;  // merges_computed()
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
   void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
   void HoldTargetRange(const RangeMsg& msg, const SenderKey& from);
@@ -193,11 +197,13 @@ class AgentProtocol {
     bool awaiting_basis = false;     // rejoining: no usable posterior of step-1 yet
     std::optional<InfoState> basis;  // replaces the posterior of step-1 (adoption)
     bool merged = false;
-    // The merge of the held contributions' posteriors (BaseOf), and how many were held when
-    // it was made: held only grows, and every late contribution recomputes the steps after
-    // it, so the covariance intersections are made again only when a contribution came.
+    // The merge of the held contributions' posteriors (BaseOf), how many were held when it
+    // was made, and the distinct posteriors it folded, in order: held only grows, and every
+    // late contribution recomputes the steps after it, so the covariance intersections are
+    // made again only when a contribution came that changed what they fold.
     std::optional<InfoState> merge_base;
     std::size_t merge_base_held = 0;
+    std::vector<InfoState> merge_folded;
     std::map<AgentId, Held> held;    // ascending id
     InfoState prior;                 // y(k|k-1), Y(k|k-1)
     InfoState posterior;             // y(k|k), Y(k|k)

@@ -180,6 +180,14 @@ TEST_CASE("A step that leaves the history incomplete leads to one merge after wh
   net.RunUntil(20, lose);
   // THEN agent 1 asked for a merge, every agent merged once, and all agree afterwards
   for (AgentId id = 1; id <= 3; ++id) CHECK(net.agents.at(id)->counters().merges == 1);
+  // The merged step's contributions carry two distinct posteriors (agent 1's, which lacks
+  // agent 3's contribution of step 3, and the others'): the covariance intersection is
+  // computed again only when the set of distinct posteriors grew, so at most twice per agent,
+  // however the contributions come.
+  for (AgentId id = 1; id <= 3; ++id) {
+    CHECK(net.agents.at(id)->merges_computed() >= 1);
+    CHECK(net.agents.at(id)->merges_computed() <= 2);
+  }
   CHECK(AllAgreeAt(net, 20));
   CHECK(net.rows.at(1).back().estimate_m == net.rows.at(2).back().estimate_m);
   CHECK(net.rows.at(3).back().estimate_m == net.rows.at(2).back().estimate_m);
