@@ -194,6 +194,7 @@ int AgentNode::Run() {
     protocol_.OnTimer(now_s);
     Pump();
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
+    if (ThrowForTest()) dds::ThrowInAThreadForTest();
     if (dds::RestartForLostPorts(node_, *context_.log, "after step " + std::to_string(protocol_.last_written_step()),
                                  watching_ports_)) {
       WriteCounters();
@@ -225,6 +226,13 @@ int AgentNode::Run() {
   }
   WriteCounters();
   return exit_code_.value_or(protocol::kExitOk);
+}
+
+bool AgentNode::ThrowForTest() {
+  static const StepIndex at_step = dds::FaultThrowStep(std::to_string(id_));
+  if (threw_for_test_ || at_step == 0 || protocol_.last_written_step() < at_step) return false;
+  threw_for_test_ = true;
+  return true;
 }
 
 bool AgentNode::DeafForTest() const {

@@ -57,6 +57,7 @@ class AgentNode : public dds::Application {
   // place (RestartInPlace), at most dds::kMaxRestartsInPlace times in a process's life.
   int Deaf();
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
+  bool ThrowForTest();       // DEIF_FAULT_THROW (dds::FaultThrowStep), once
   // Whether this agent's endpoint discovery stopped short of the participants it sees
   // (protocol::DiscoveryWatch) and it is to start again in place with a new participant. If
   // it already did so dds::kMaxRestartsInPlace times, it says so once and goes on.
@@ -88,6 +89,7 @@ class AgentNode : public dds::Application {
   std::optional<int> exit_code_;
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   bool watching_ports_ = true;     // dds::RestartForLostPorts
+  bool threw_for_test_ = false;    // ThrowForTest
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
 };

@@ -12,12 +12,14 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -202,6 +204,58 @@ void CloseOnExec() {
   }
 }
 
+// The command that starts this process again in place after an exception ended a thread of
+// Fast DDS (OnTerminate): its own command with --append. Made once the options are parsed;
+// the environment is set only when it is used.
+std::vector<std::string> g_terminate_args;
+std::vector<char*> g_terminate_argv;
+const char* g_program = "";
+
+// A Fast DDS 2.9.1 shared-memory receive thread locks its port's interprocess mutex once more
+// after each message, outside any try (SharedMemChannelResource::perform_listen_operation,
+// stop_processing_buffer): when another process holds that mutex longer than Fast DDS's lock
+// timeout (stopped, starved, or killed while it pushed), the exception ends the thread and
+// std::terminate would abort a process that is not broken (docs/FASTDDS_NOTES.md, "An
+// exception that ends a thread"). Such a process starts again in place, at most
+// kMaxRestartsInPlace times; any other uncaught exception is logged and aborts as before.
+[[noreturn]] void OnTerminate() {
+  std::string what = "not a std::exception";
+  try {
+    if (const std::exception_ptr e = std::current_exception()) std::rethrow_exception(e);
+    what = "no exception";
+  } catch (const std::exception& e) {
+    what = e.what();
+  } catch (...) {
+  }
+  const bool lock_timeout = what.rfind(kLockTimeout, 0) == 0;
+  const bool may = lock_timeout && !g_terminate_argv.empty() && RestartsInPlace() < kMaxRestartsInPlace;
+  std::fprintf(stderr, "%s: error: an exception ended a thread (%s); %s (docs/FASTDDS_NOTES.md, \"An exception that ends a thread\")\n",
+               g_program, what.c_str(),
+               may ? "it starts again in place" : lock_timeout ? "it already started again in place too often; aborting" : "aborting");
+  std::fflush(stderr);
+  if (may) {
+    ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
+    ::setenv(kShmPortsUsedVariable, ShmPortsUsedSoFar().c_str(), 1);
+    CloseOnExec();
+    sigset_t none;
+    sigemptyset(&none);
+    sigprocmask(SIG_SETMASK, &none, nullptr);
+    ::execv("/proc/self/exe", g_terminate_argv.data());
+  }
+  std::abort();
+}
+
+void PrepareTerminate(int argc, char** argv, const char* program) {
+  g_program = program;
+  for (int i = 0; i < argc; ++i) g_terminate_args.emplace_back(argv[i]);
+  if (std::find(g_terminate_args.begin(), g_terminate_args.end(), "--append") == g_terminate_args.end()) {
+    g_terminate_args.emplace_back("--append");
+  }
+  for (std::string& a : g_terminate_args) g_terminate_argv.push_back(a.data());
+  g_terminate_argv.push_back(nullptr);
+  std::set_terminate(OnTerminate);
+}
+
 // This program's command again, each option of `replaced` with its new value instead of the
 // old one, and --append (docs/RUNNING.md, "Restarting in place"); made before the
 // participant is deleted, so that a hang or crash in the deletion can still exec it.
@@ -294,8 +348,12 @@ std::string DefaultRunName(const Config& config) {
   return buffer;
 }
 
-StepIndex FaultDeafStep(const std::string& who) {
-  const char* value = std::getenv("DEIF_FAULT_DEAF");
+namespace {
+
+// STEP of the first STEP:WHO item of `variable` whose WHO is `who`; 0 when none, and in a
+// process that already started again in place.
+StepIndex FaultStep(const char* variable, const std::string& who) {
+  const char* value = std::getenv(variable);
   if (value == nullptr || RestartsInPlace() > 0) return 0;
   std::stringstream list(value);
   std::string item;
@@ -306,6 +364,16 @@ StepIndex FaultDeafStep(const std::string& who) {
     if (!step.empty() && step.size() < 10 && AllDigits(step)) return std::stoll(step);
   }
   return 0;
+}
+
+}  // namespace
+
+StepIndex FaultDeafStep(const std::string& who) { return FaultStep("DEIF_FAULT_DEAF", who); }
+
+StepIndex FaultThrowStep(const std::string& who) { return FaultStep("DEIF_FAULT_THROW", who); }
+
+void ThrowInAThreadForTest() {
+  std::thread([] { throw std::runtime_error(std::string(kLockTimeout) + " (DEIF_FAULT_THROW)"); }).detach();
 }
 
 bool MayRestartInPlace(spdlog::logger& log, const std::string& why, const std::string& when) {
@@ -393,6 +461,7 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
   context.run_name = options.run_name.empty() ? DefaultRunName(context.config) : options.run_name;
 
   context.log = MakeLogger(spec.logger_name(), options.log_dir, options.append);
+  PrepareTerminate(argc, argv, spec.program);
   try {
     std::unique_ptr<Application> app = spec.make(context);
     Application* raw = app.get();

@@ -98,6 +98,14 @@ int RestartsInPlace();
 // the first process of `who` acts as if its receive were stuck, so that tests can run the
 // restart in place on demand (docs/RUNNING.md, "Restarting in place"); 0 when not asked.
 StepIndex FaultDeafStep(const std::string& who);
+// DEIF_FAULT_THROW=STEP:WHO[,...], the same way: the step from which the first process of
+// `who` ends a thread of its own with the exception Fast DDS throws when an interprocess lock
+// times out (ThrowInAThreadForTest), so that tests can see it start again in place
+// (docs/FASTDDS_NOTES.md, "An exception that ends a thread"); 0 when not asked.
+StepIndex FaultThrowStep(const std::string& who);
+void ThrowInAThreadForTest();
+// How Fast DDS's (boost's) exception of a timed-out interprocess lock begins.
+constexpr const char* kLockTimeout = "Interprocess mutex timeout when locking";
 // For a process that must start again with a new participant (`why`): logs why, and whether
 // it may start again in place (true) or already did kMaxRestartsInPlace times (false). `when`
 // says where its run stands, e.g. "after step 50".

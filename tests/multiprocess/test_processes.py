@@ -337,6 +337,31 @@ def test_restart_in_place(work, domain, monkeypatch):
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def test_thread_ended_by_a_lock_timeout(work, domain, monkeypatch):
+    """A shared-memory receive thread of Fast DDS 2.9.1 locks its port once more after each
+    message, outside any try: when another process holds that lock past Fast DDS's timeout
+    (stopped, starved, or killed while it pushed), the exception ends the thread and would
+    abort the process (docs/FASTDDS_NOTES.md, "An exception that ends a thread"). The same
+    exception, thrown in a thread of agent 3 at step 50 (DEIF_FAULT_THROW), must not end it:
+    it says why, starts again in place, rejoins and is fused by everyone again."""
+    monkeypatch.setenv("DEIF_FAULT_THROW", "50:3")
+    res = launch(work, domain, agents=4, steps=150,
+                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
+    assert res.ok, res.why_not_ok()
+    p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
+    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1, p
+    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
+        log = f.read()
+    assert "an exception ended a thread (Interprocess mutex timeout when locking" in log, log[-2000:]
+    steps = steps_of(res.out_dir, 3)
+    assert steps == sorted(set(steps)) and steps[-1] == 150 and steps[:50] == list(range(1, 51))
+    for j in range(1, 5):
+        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 100]
+        fused_all = sum(r["fused"] == "4" for r in late)
+        assert late and fused_all >= 0.8 * len(late), \
+            f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
+
+
 def test_restart_in_place_everyone(work, domain, monkeypatch):
     """Every process of a lock-step run restarts in place at about the same step (as when a
     starved host leaves them all deaf at once): the new target must not go back to step 1
