@@ -358,7 +358,8 @@ std::mutex g_listened_mutex;
 std::vector<int> g_listened_ports;
 
 // A participant id whose shared-memory ports (/dev/shm/fastrtps_port<port>, the unicast
-// ports of RTPS's default port mapping) no process has created: a process restarted after
+// ports of RTPS's default port mapping) no process has created (neither the port's file nor
+// its lock file exists): a process restarted after
 // kill -9 must not reopen the ports its dead predecessor left. Fast DDS finds such a port
 // unhealthy (nobody drains it), removes the segment and creates a new one under the same
 // name, while the live peers keep writing into the old mapping: the newcomer then hears
@@ -375,9 +376,11 @@ std::int32_t FreshShmParticipantId(int domain_id) {
   constexpr int kPortBase = 7400, kDomainGain = 250, kIdGain = 2, kMetaOffset = 10;
   constexpr int kMaxId = (kDomainGain - kMetaOffset) / kIdGain - 1;  // ports stay in the domain
   const std::set<int> used = PortsOfList(std::getenv(kShmPortsUsedVariable));
+  // A port whose segment's name is gone may still have a live listener: its lock file.
   const auto taken = [&used](int port) {
     std::error_code ec;
-    return used.count(port) > 0 || std::filesystem::exists("/dev/shm/fastrtps_port" + std::to_string(port), ec);
+    const std::string path = "/dev/shm/fastrtps_port" + std::to_string(port);
+    return used.count(port) > 0 || std::filesystem::exists(path, ec) || std::filesystem::exists(path + "_el", ec);
   };
   for (int id = 0; id <= kMaxId; ++id) {
     const int meta = kPortBase + kDomainGain * domain_id + kMetaOffset + kIdGain * id;

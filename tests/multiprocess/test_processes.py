@@ -294,6 +294,10 @@ def test_port_replaced_under_the_target(work, domain):
     assert rejoined_after is not None, \
         f"agent 2 never rejoined; the target's log:\n{log[-3000:]}\nagent 2:\n{log_excerpt(res.out_dir, 2)}"
     print(f"agent 2 rejoined {rejoined_after:.1f} s after its restart")
+    # The restarted agent must not take the target's ids: their files are gone, their lock
+    # files held (once it did, in CI, and then no agent heard it again).
+    with open(os.path.join(res.out_dir, "logs", "agent-2.log"), errors="replace") as f:
+        assert "Failed init_port" not in f.read()
     assert "replaced this process's shared-memory port" in log and "starts again in place" in log, log[-3000:]
     by_step = {j: {r["step"]: r for r in rows(res.out_dir, j)} for j in range(1, 5)}
     common = sorted(set.intersection(*(set(v) for v in by_step.values())), key=int)
