@@ -204,58 +204,6 @@ void CloseOnExec() {
   }
 }
 
-// The command that starts this process again in place after an exception ended a thread of
-// Fast DDS (OnTerminate): its own command with --append. Made once the options are parsed;
-// the environment is set only when it is used.
-std::vector<std::string> g_terminate_args;
-std::vector<char*> g_terminate_argv;
-const char* g_program = "";
-
-// A Fast DDS 2.9.1 shared-memory receive thread locks its port's interprocess mutex once more
-// after each message, outside any try (SharedMemChannelResource::perform_listen_operation,
-// stop_processing_buffer): when another process holds that mutex longer than Fast DDS's lock
-// timeout (stopped, starved, or killed while it pushed), the exception ends the thread and
-// std::terminate would abort a process that is not broken (docs/FASTDDS_NOTES.md, "An
-// exception that ends a thread"). Such a process starts again in place, at most
-// kMaxRestartsInPlace times; any other uncaught exception is logged and aborts as before.
-[[noreturn]] void OnTerminate() {
-  std::string what = "not a std::exception";
-  try {
-    if (const std::exception_ptr e = std::current_exception()) std::rethrow_exception(e);
-    what = "no exception";
-  } catch (const std::exception& e) {
-    what = e.what();
-  } catch (...) {
-  }
-  const bool lock_timeout = what.rfind(kLockTimeout, 0) == 0;
-  const bool may = lock_timeout && !g_terminate_argv.empty() && RestartsInPlace() < kMaxRestartsInPlace;
-  std::fprintf(stderr, "%s: error: an exception ended a thread (%s); %s (docs/FASTDDS_NOTES.md, \"An exception that ends a thread\")\n",
-               g_program, what.c_str(),
-               may ? "it starts again in place" : lock_timeout ? "it already started again in place too often; aborting" : "aborting");
-  std::fflush(stderr);
-  if (may) {
-    ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
-    ::setenv(kShmPortsUsedVariable, ShmPortsUsedSoFar().c_str(), 1);
-    CloseOnExec();
-    sigset_t none;
-    sigemptyset(&none);
-    sigprocmask(SIG_SETMASK, &none, nullptr);
-    ::execv("/proc/self/exe", g_terminate_argv.data());
-  }
-  std::abort();
-}
-
-void PrepareTerminate(int argc, char** argv, const char* program) {
-  g_program = program;
-  for (int i = 0; i < argc; ++i) g_terminate_args.emplace_back(argv[i]);
-  if (std::find(g_terminate_args.begin(), g_terminate_args.end(), "--append") == g_terminate_args.end()) {
-    g_terminate_args.emplace_back("--append");
-  }
-  for (std::string& a : g_terminate_args) g_terminate_argv.push_back(a.data());
-  g_terminate_argv.push_back(nullptr);
-  std::set_terminate(OnTerminate);
-}
-
 // This program's command again, each option of `replaced` with its new value instead of the
 // old one, and --append (docs/RUNNING.md, "Restarting in place"); made before the
 // participant is deleted, so that a hang or crash in the deletion can still exec it.
@@ -300,6 +248,49 @@ class RestartCommand {
   std::vector<std::string> args_;
   std::vector<char*> argv_;
 };
+
+// This process's command line, for OnTerminate (PrepareTerminate): main's argv lives as long
+// as the process.
+int g_argc = 0;
+char** g_argv = nullptr;
+const char* g_program = "";
+
+// A Fast DDS 2.9.1 shared-memory receive thread locks its port's interprocess mutex once more
+// after each message, outside any try (SharedMemChannelResource::perform_listen_operation,
+// stop_processing_buffer): when another process holds that mutex longer than Fast DDS's lock
+// timeout (stopped, starved, or killed while it pushed), the exception ends the thread and
+// std::terminate would abort a process that is not broken (docs/FASTDDS_NOTES.md, "An
+// exception that ends a thread"). Such a process starts again in place (RestartCommand, as
+// any restart in place, at most kMaxRestartsInPlace times); any other uncaught exception is
+// logged and aborts as before.
+[[noreturn]] void OnTerminate() {
+  std::string what = "not a std::exception";
+  try {
+    if (const std::exception_ptr e = std::current_exception()) std::rethrow_exception(e);
+    what = "no exception";
+  } catch (const std::exception& e) {
+    what = e.what();
+  } catch (...) {
+  }
+  const bool lock_timeout = what.rfind(kLockTimeout, 0) == 0;
+  const bool may = lock_timeout && g_argv != nullptr && RestartsInPlace() < kMaxRestartsInPlace;
+  std::fprintf(stderr, "%s: error: an exception ended a thread (%s); %s (docs/FASTDDS_NOTES.md, \"An exception that ends a thread\")\n",
+               g_program, what.c_str(),
+               may ? "it starts again in place" : lock_timeout ? "it already started again in place too often; aborting" : "aborting");
+  std::fflush(stderr);
+  if (may) {
+    const std::string why = RestartCommand(g_argc, g_argv, {}).Exec();  // only on failure
+    std::fprintf(stderr, "%s: error: %s\n", g_program, why.c_str());
+  }
+  std::abort();
+}
+
+void PrepareTerminate(int argc, char** argv, const char* program) {
+  g_argc = argc;
+  g_argv = argv;
+  g_program = program;
+  std::set_terminate(OnTerminate);
+}
 
 }  // namespace
 
