@@ -161,7 +161,9 @@ int AgentNode::Run() {
       const std::optional<double> relay = tree_->NextDeadline();
       if (relay && (!wake || *relay < *wake)) wake = relay;
     }
-    const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(wake, kMaxWaitS));
+    const dds::Clock::time_point wake_by = dds::WakeBy(wake, kMaxWaitS);
+    const double wait_from_s = dds::ToSeconds(dds::Clock::now());
+    const std::vector<dds::Event> events = node_.Wait(wake_by);
     const double now_s = dds::ToSeconds(dds::Clock::now());
     if (last_loop_s_ >= 0.0 && now_s - last_loop_s_ > AwayAfterS()) {
       // This process was frozen or starved: the lapses it now sees are of its own making
@@ -169,8 +171,14 @@ int AgentNode::Run() {
       const double hold_s =
           std::max(timings_.liveliness_lease_s, EffectiveRelayLeaseS(config_)) +
           config_.network.liveliness_grace_s;
-      context_.log->info("the loop stood still for {:.2f} s: peers' lapses count only after {:.2f} s more",
-                         now_s - last_loop_s_, hold_s);
+      // Where the time went, for whoever reads the log: handling and publishing (a write
+      // that blocked), or the wait, and how far past its wake-up it returned (frozen or
+      // starved).
+      context_.log->info(
+          "the loop stood still for {:.2f} s ({:.2f} s handling and publishing, {:.2f} s waiting, back {:.2f} s "
+          "after its wake-up): peers' lapses count only after {:.2f} s more",
+          now_s - last_loop_s_, wait_from_s - last_loop_s_, now_s - wait_from_s,
+          std::max(0.0, now_s - dds::ToSeconds(wake_by)), hold_s);
       protocol_.OnAway(now_s, hold_s);
       if (tree_) tree_->OnAway(now_s, hold_s);
     }

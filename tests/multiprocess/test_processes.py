@@ -220,12 +220,15 @@ def test_frozen_while_a_peer_dies(work, domain, monkeypatch):
     thread of Fast DDS 2.9.1 that reaches such a message after its own process dropped the
     segment is stuck on it for good, and the agent would hear nothing more; the agent sees
     that loop and starts again in place (docs/FASTDDS_NOTES.md, "A receive loop stuck on a
-    dead writer's segment"). Either way it fuses again: most of its last 50 steps are
-    complete with agents 1 and 3, and theirs with it."""
+    dead writer's segment"). Either way it fuses again: most of the last 50 steps are
+    complete with agents 1, 3 and 4. The last 50 begin 11 s after the resume: the slowest way
+    back seen (a CI run) is a restart of agent 4 whose new endpoints a peer's discovery never
+    matched, so the peer started again in place after its discovery patience of 5 s
+    (docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"): about 7 s in all."""
     monkeypatch.setenv("DEIF_DDS_LOG", "warning")  # Fast DDS's warnings in the logs, for a failure
     faults = [launcher.Fault(20, "stop", 4), launcher.Fault(30, "kill", 2),
               launcher.Fault(100, "cont", 4)]
-    res = launch(work, domain, agents=4, steps=200, faults=faults,
+    res = launch(work, domain, agents=4, steps=260, faults=faults,
                  overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
     assert res.ok, res.why_not_ok()
     with open(os.path.join(res.out_dir, "logs", "agent-4.log"), errors="replace") as f:
@@ -235,10 +238,11 @@ def test_frozen_while_a_peer_dies(work, domain, monkeypatch):
           f"{log.count('Error receiving data')} receive errors logged")
     assert "giving up" not in log
     for j in (1, 3, 4):
-        last = [r for r in rows(res.out_dir, j) if int(r["step"]) > 150]
+        last = [r for r in rows(res.out_dir, j) if int(r["step"]) > 210]
         complete = [r for r in last if r["complete"] == "1" and r["fused"] == "3"]
         assert last and len(complete) >= 0.8 * len(last), \
-            f"agent {j}: {len(complete)} of {len(last)} steps fused 3; its log:\n{log_excerpt(res.out_dir, j)}"
+            f"agent {j}: {len(complete)} of {len(last)} steps fused 3; its log:\n{log_excerpt(res.out_dir, j)}" + \
+            ("" if j == 4 else f"\nagent 4's log:\n{log_excerpt(res.out_dir, 4, pattern=r'lost|alive|member|place|Port')}")
 
 
 def listened_ports(pid):
