@@ -16,6 +16,10 @@ namespace deif::agent {
 namespace {
 
 constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
+// How often it looks for peers' processes that ended (docs/PROTOCOL.md, "A process that
+// ended"); the loop wakes for it too.
+constexpr double kEndedCheckS = 0.25;
+constexpr double kEndedCheckSuspectS = 0.02;
 // Writers kept per parent: its relay writer, and that of each process that restarted as it.
 constexpr std::size_t kMaxParentWriters = 16;
 
@@ -161,7 +165,7 @@ int AgentNode::Run() {
       const std::optional<double> relay = tree_->NextDeadline();
       if (relay && (!wake || *relay < *wake)) wake = relay;
     }
-    const dds::Clock::time_point wake_by = dds::WakeBy(wake, kMaxWaitS);
+    const dds::Clock::time_point wake_by = dds::WakeBy(wake, kEndedCheckS);
     const double wait_from_s = dds::ToSeconds(dds::Clock::now());
     const std::vector<dds::Event> events = node_.Wait(wake_by);
     const double now_s = dds::ToSeconds(dds::Clock::now());
@@ -196,6 +200,12 @@ int AgentNode::Run() {
       }
     }
     for (const dds::Event& event : events) Dispatch(event, now_s);
+    // More often while the target's roll call leaves out a member: the target may have seen
+    // its process end already.
+    for (const protocol::SenderKey& ended :
+         node_.EndedAgents(protocol_.MemberOutOfRollCall() ? kEndedCheckSuspectS : kEndedCheckS)) {
+      protocol_.OnProcessEnded(ended, now_s);
+    }
     ReportMatches(now_s);
     protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
     if (tree_) tree_->OnTimer(now_s);
@@ -434,8 +444,8 @@ void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
 }
 
 double AgentNode::AwayAfterS() const {
-  // The loop wakes at least every kMaxWaitS; away longer than a lease of its peers' writers,
-  // they lapse in its view.
+  // The loop wakes at least every kEndedCheckS; away longer than a lease of its peers'
+  // writers, they lapse in its view (and never less than 1 s: twice kMaxWaitS).
   return std::max(2.0 * kMaxWaitS, timings_.liveliness_lease_s);
 }
 

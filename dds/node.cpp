@@ -516,6 +516,7 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
       const bool of_run = !watched_run_.empty() && std::string(data.begin(), data.end()) == watched_run_;
       peer.watched = name == watched_name_ && of_run;
       peer.agent = of_run ? AgentIdOfName(name) : 0;
+      peer.shm_ports = ShmUnicastPorts(info.info);
       last_discovery_ = Clock::now();
     } else if (info.status == Info::REMOVED_PARTICIPANT ||
                info.status == Info::DROPPED_PARTICIPANT) {
@@ -580,6 +581,19 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     }
     return up;
   }
+  // The agents of the watched run that are up, whose participants listen on shared-memory
+  // ports of the host `host` (the two bytes of a Fast DDS shared-memory locator and GUID
+  // prefix that name a host), and those ports, by participant.
+  std::map<protocol::SenderKey, std::vector<int>> AgentShmPorts(std::array<std::uint8_t, 2> host) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::map<protocol::SenderKey, std::vector<int>> ports;
+    for (const auto& [guid, peer] : peers_) {
+      if (peer.agent <= 0 || peer.gone || peer.shm_ports.empty() || peer.shm_ports.front().first != host) continue;
+      std::vector<int>& list = ports[ToKey(fdds::InstanceHandle_t(guid))];
+      for (const auto& [port_host, port] : peer.shm_ports) list.push_back(port);
+    }
+    return ports;
+  }
   // Forgets the participants (a new local participant authenticates afresh).
   void ResetPeers() {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -600,7 +614,23 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     Clock::time_point discovered{};
     bool watched = false;  // its name and announced run are the watched ones (Watch)
     AgentId agent = 0;     // agent-<id> of the watched run, else 0
+    std::vector<std::pair<std::array<std::uint8_t, 2>, int>> shm_ports;  // (host, port) of its unicast locators
   };
+  // The shared-memory unicast locators a participant announces, metatraffic and user: a
+  // Fast DDS 2.9.1 SHM locator carries 'U' (unicast) and its host's id in address bytes 0-2.
+  static std::vector<std::pair<std::array<std::uint8_t, 2>, int>> ShmUnicastPorts(
+      const eprosima::fastrtps::rtps::ParticipantProxyData& data) {
+    std::vector<std::pair<std::array<std::uint8_t, 2>, int>> ports;
+    for (const auto* list : {&data.metatraffic_locators.unicast, &data.default_locators.unicast}) {
+      for (const auto& locator : *list) {
+        if (locator.kind != LOCATOR_KIND_SHM || locator.address[0] != 'U') continue;
+        const std::pair<std::array<std::uint8_t, 2>, int> port{{locator.address[1], locator.address[2]},
+                                                               static_cast<int>(locator.port)};
+        if (std::find(ports.begin(), ports.end(), port) == ports.end()) ports.push_back(port);
+      }
+    }
+    return ports;
+  }
   // The id of a participant named agent-<id> (0 for any other name).
   static AgentId AgentIdOfName(const std::string& name) {
     static const std::string prefix = "agent-";
@@ -807,6 +837,9 @@ struct Node::Impl {
   // The shared-memory ports this participant listens on (PortsLost), checked once a second.
   std::optional<ShmPortWatch> port_watch;
   Clock::time_point next_port_check{};
+  // The processes of the run's agents on this host, by their ports' locks (EndedAgents).
+  EndedProcessWatch ended_watch;
+  Clock::time_point next_ended_check{};
 
   std::mutex events_mutex;
   std::vector<LivelinessChange> liveliness_events;  // guarded by events_mutex
@@ -1339,6 +1372,18 @@ std::string ShmPortsUsedSoFar() {
 
 std::vector<int> Node::ShmPortsListened() const {
   return impl_->port_watch ? impl_->port_watch->ports() : std::vector<int>{};
+}
+
+std::vector<protocol::SenderKey> Node::EndedAgents(double every_s) {
+  Impl& d = *impl_;
+  const auto now = Clock::now();
+  if (now < d.next_ended_check || d.participant == nullptr) return {};
+  d.next_ended_check = now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(every_s));
+  // This host's id as Fast DDS puts it in the GUID prefix (bytes 2-3) and in its
+  // shared-memory locators (address bytes 1-2).
+  const auto& prefix = d.participant->guid().guidPrefix.value;
+  d.ended_watch.Watch(d.participant_listener.AgentShmPorts({prefix[2], prefix[3]}));
+  return d.ended_watch.Check();
 }
 
 std::vector<int> Node::PortsLost() {

@@ -1,6 +1,11 @@
 #include "dds/shm_ports.hpp"
 
+#include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
 
 #include <filesystem>
 #include <fstream>
@@ -101,6 +106,19 @@ std::vector<int> ShmPortWatch::Lost(double now_s) {
   if (!replaced_since_) replaced_since_ = now_s;
   if (now_s - *replaced_since_ < hold_s_) return {};
   return replaced;
+}
+
+PortListener ListenerOf(int port, const std::string& dir) {
+  const std::string path = PortPath(dir, port) + "_el";
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return errno == ENOENT ? PortListener::kAbsent : PortListener::kHeld;  // unreadable: say nothing
+  PortListener state = PortListener::kHeld;
+  if (::flock(fd, LOCK_SH | LOCK_NB) == 0) {
+    ::flock(fd, LOCK_UN);
+    state = PortListener::kFree;
+  }
+  ::close(fd);
+  return state;
 }
 
 }  // namespace deif::dds

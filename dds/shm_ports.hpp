@@ -13,6 +13,9 @@
 // No Fast DDS header: /proc and the file system only.
 #pragma once
 
+#include <array>
+#include <cstdint>
+#include <map>
 #include <optional>
 #include <set>
 #include <string>
@@ -51,5 +54,74 @@ class ShmPortWatch {
   std::string dir_;
   std::optional<double> replaced_since_;
 };
+
+// Whether a process listens on unicast port P in `dir`: its listener holds the port's lock
+// file fastrtps_port<P>_el (an exclusive flock) for as long as the port lives, and the kernel
+// lets go of it when the process ends, however it ends (kill -9 included). A process that is
+// frozen or starved keeps it. kAbsent: no such file (never made on this host, or removed by
+// a peer that found it free). The probe takes a shared lock for a moment, never the file.
+enum class PortListener { kHeld, kFree, kAbsent };
+PortListener ListenerOf(int port, const std::string& dir = "/dev/shm");
+
+// Tells when the process behind a peer participant on this host has ended, from its
+// shared-memory ports' lock files rather than from its silence: a starved process is slow,
+// one whose locks the kernel released is gone (docs/PROTOCOL.md, "A process that ended").
+// Keyed by whatever names the participant.
+template <typename Key>
+class BasicEndedProcessWatch {
+ public:
+  explicit BasicEndedProcessWatch(std::string dir = "/dev/shm") : dir_(std::move(dir)) {}
+  // The participants to watch now and the unicast ports each listens on; one missing from
+  // `ports` is no longer watched (an ended one is never reported twice).
+  void Watch(const std::map<Key, std::vector<int>>& ports);
+  // Probes the watched ports; returns the participants found ended since the last call: a
+  // port of it was held at some probe, and none was at two probes in a row (a listener that
+  // makes its own port anew lets go of the lock for a moment). A participant whose first
+  // port is held costs one probe.
+  std::vector<Key> Check();
+
+ private:
+  struct Watched {
+    std::vector<int> ports;
+    bool held = false;   // a port seen held at least once
+    int free_checks = 0;  // probes in a row at which none was held
+    bool ended = false;
+  };
+  std::string dir_;
+  std::map<Key, Watched> watched_;
+};
+using EndedProcessWatch = BasicEndedProcessWatch<std::array<std::uint8_t, 16>>;
+
+template <typename Key>
+void BasicEndedProcessWatch<Key>::Watch(const std::map<Key, std::vector<int>>& ports) {
+  for (auto it = watched_.begin(); it != watched_.end();) {
+    it = ports.count(it->first) == 0 ? watched_.erase(it) : std::next(it);
+  }
+  for (const auto& [key, list] : ports) {
+    if (list.empty()) continue;
+    Watched& w = watched_[key];
+    if (w.ports != list) w = Watched{list};
+  }
+}
+
+template <typename Key>
+std::vector<Key> BasicEndedProcessWatch<Key>::Check() {
+  std::vector<Key> ended;
+  for (auto& [key, w] : watched_) {
+    if (w.ended) continue;
+    bool held = false;  // one port held is enough: the process lives (one probe, mostly)
+    for (int port : w.ports) {
+      held = ListenerOf(port, dir_) == PortListener::kHeld;
+      if (held) break;
+    }
+    w.held = w.held || held;
+    w.free_checks = held ? 0 : w.free_checks + 1;
+    if (w.held && w.free_checks >= 2) {
+      w.ended = true;
+      ended.push_back(key);
+    }
+  }
+  return ended;
+}
 
 }  // namespace deif::dds

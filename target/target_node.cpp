@@ -19,6 +19,9 @@ namespace deif::target {
 namespace {
 
 constexpr double kMaxWaitS = 0.5;
+// How often it looks for agents' processes that ended (docs/PROTOCOL.md, "A process that
+// ended"); the loop wakes for it too, once the run has started.
+constexpr double kEndedCheckS = 0.1;
 
 protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
                                                   const TargetOptions& options) {
@@ -134,7 +137,8 @@ int TargetNode::Run() {
   early_events_.clear();
   Execute(protocol_.TakeActions());
   while (!stop_requested_ && !protocol_.finished()) {
-    const std::vector<dds::Event> events = node_.Wait(dds::WakeBy(protocol_.NextDeadline(), kMaxWaitS));
+    const std::vector<dds::Event> events =
+        node_.Wait(dds::WakeBy(protocol_.NextDeadline(), protocol_.started() ? kEndedCheckS : kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
     if (protocol_.started()) delivery_.Record(events);  // from the first step on (as the agents)
     for (const dds::Event& event : events) Dispatch(event, now_s);
@@ -144,6 +148,7 @@ int TargetNode::Run() {
       go.swap(go_steps_);
     }
     for (StepIndex step : go) protocol_.OnGo(step, now_s);
+    for (const protocol::SenderKey& ended : node_.EndedAgents(kEndedCheckS)) protocol_.OnProcessEnded(ended, now_s);
     if (!protocol_.started()) protocol_.OnRangeReaders(node_.MatchedReaderKeys(dds::Topic::kRange));
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());

@@ -254,6 +254,39 @@ void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, doub
   }
 }
 
+void AgentProtocol::OnProcessEnded(const SenderKey& participant, double now_s) {
+  if (finished_ || !started_) return;
+  std::vector<SenderKey> ended;
+  for (const auto& [id, peer] : peers_) {
+    if (peer.writer && peer.alive && SameProcess(*peer.writer, participant)) ended.push_back(*peer.writer);
+  }
+  for (const SenderKey& writer : ended) {
+    lapses_.Confirm(writer);
+    Log(LogLevel::kInfo, "agent " + std::to_string(writer_ids_.at(writer)) +
+                             "'s process ended (the locks of its shared-memory ports were released)");
+    ApplyLiveliness(writer, false, now_s);
+    if (finished_) return;
+  }
+}
+
+bool AgentProtocol::MemberOutOfRollCall() const {
+  const std::vector<AgentId>* roll_call = NewestRollCall();
+  if (roll_call == nullptr) return false;
+  for (const auto& [id, peer] : peers_) {
+    if (peer.writer && peer.alive && !std::binary_search(roll_call->begin(), roll_call->end(), id)) return true;
+  }
+  return false;
+}
+
+const std::vector<AgentId>* AgentProtocol::NewestRollCall() const {
+  // Of a range waiting, or of the newest step.
+  if (!pending_ranges_.empty() && !pending_ranges_.rbegin()->second.msg.roll_call.empty()) {
+    return &pending_ranges_.rbegin()->second.msg.roll_call;
+  }
+  if (!records_.empty() && records_.rbegin()->second.roll_call) return &*records_.rbegin()->second.roll_call;
+  return nullptr;
+}
+
 void AgentProtocol::ConfirmLapses(double now_s) {
   for (const SenderKey& writer : lapses_.Due(now_s)) {
     if (finished_) return;
@@ -264,12 +297,7 @@ void AgentProtocol::ConfirmLapses(double now_s) {
   // gone too. The longer peer grace only spares peers the rest of the network still hears
   // (docs/PROTOCOL.md, "Renewals that are rare").
   if (!lapses_.NextDue()) return;  // none held: nothing to end (at every range and wake-up)
-  const std::vector<AgentId>* roll_call = nullptr;  // the newest: of a range waiting, or a step
-  if (!pending_ranges_.empty() && !pending_ranges_.rbegin()->second.msg.roll_call.empty()) {
-    roll_call = &pending_ranges_.rbegin()->second.msg.roll_call;
-  } else if (!records_.empty() && records_.rbegin()->second.roll_call) {
-    roll_call = &*records_.rbegin()->second.roll_call;
-  }
+  const std::vector<AgentId>* roll_call = NewestRollCall();
   if (roll_call == nullptr) return;
   std::vector<SenderKey> gone;
   for (const auto& [id, peer] : peers_) {

@@ -116,6 +116,15 @@ class AgentProtocol {
   // A remote writer's liveliness changed: a peer's contribution writer, or the target's
   // range writer.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // The process of a peer ended: the transport found the peer's participant `participant`
+  // gone for good (on this host, the kernel released its shared-memory ports' locks;
+  // docs/PROTOCOL.md, "A process that ended"). A loss at once, without a grace: a process that
+  // is slow keeps its locks. Its writers are those SameProcess with `participant`.
+  void OnProcessEnded(const SenderKey& participant, double now_s);
+  // Whether the target's newest roll call leaves out a peer this agent still counts as a
+  // member (the target saw it gone, or it is catching up): the transport then looks for the
+  // end of its process more often (docs/PROTOCOL.md, "A process that ended").
+  bool MemberOutOfRollCall() const;
   // This process itself was away (frozen or starved; its loop stood still) until now: a
   // lapse of a peer's or the target's writer within hold_s from now counts only if it lasts
   // until then. Its peers were not gone; it read nothing (docs/PROTOCOL.md, "Slow is not
@@ -176,6 +185,9 @@ class AgentProtocol {
   long merges_computed_ = 0;  // merges_computed()
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
   void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // The target's newest roll call this agent holds: of a range waiting, or of the newest
+  // step; nullptr before any.
+  const std::vector<AgentId>* NewestRollCall() const;
   void HoldTargetRange(const RangeMsg& msg, const SenderKey& from);
   void AdoptHeldTarget(double now_s);
   // Acts on the held losses whose grace is over.

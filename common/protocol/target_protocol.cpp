@@ -72,6 +72,20 @@ void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, dou
   }
 }
 
+void TargetProtocol::OnProcessEnded(const SenderKey& participant, double now_s) {
+  std::vector<SenderKey> ended;
+  for (const auto& [writer, id] : writer_ids_) {
+    const auto agent = agents_.find(id);
+    if (agent != agents_.end() && agent->second.alive && SameProcess(writer, participant)) ended.push_back(writer);
+  }
+  for (const SenderKey& writer : ended) {
+    lapses_.Confirm(writer);
+    Log(LogLevel::kInfo, "agent " + std::to_string(writer_ids_.at(writer)) +
+                             "'s process ended (the locks of its shared-memory ports were released)");
+    ApplyLiveliness(writer, false, now_s);
+  }
+}
+
 void TargetProtocol::ConfirmLapses(double now_s) {
   for (const SenderKey& writer : lapses_.Due(now_s)) ApplyLiveliness(writer, false, now_s);
 }

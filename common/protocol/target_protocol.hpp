@@ -64,6 +64,11 @@ class TargetProtocol {
   void OnState(const StateMsg& msg, const SenderKey& from, double now_s);
   // An agent's state writer's liveliness changed.
   void OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // An agent's process ended: the transport found the agent's participant `participant` gone
+  // for good (on this host, the kernel released its shared-memory ports' locks;
+  // docs/PROTOCOL.md, "A process that ended"). A loss at once, without a grace: a process that
+  // is slow keeps its locks. Its state writer is SameProcess with `participant`.
+  void OnProcessEnded(const SenderKey& participant, double now_s);
   // The transport knows that the writer `from` may not speak for the agent id `claimed`
   // (docs/SECURITY.md): its state is counted as rejected, reason not_authorised, unused.
   void OnUnauthorised(AgentId claimed, const SenderKey& from);

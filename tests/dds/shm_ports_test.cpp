@@ -4,6 +4,7 @@
 #include <catch2/catch.hpp>
 
 #include <fcntl.h>
+#include <sys/file.h>
 #include <sys/mman.h>
 #include <unistd.h>
 
@@ -125,4 +126,87 @@ TEST_CASE("no port watched, none lost", "[dds][shm]") {
   ShmPortWatch watch({}, 0.0, "/nonexistent");
   CHECK(watch.Replaced().empty());
   CHECK(watch.Lost(100.0).empty());
+}
+
+namespace {
+
+// A listener's hold of a port's lock file, as Fast DDS takes it (an exclusive flock on
+// fastrtps_port<P>_el, its own open file description), until released or the scope ends.
+struct HeldLock {
+  int fd = -1;
+  HeldLock(const fs::path& dir, int port) {
+    const std::string path = (dir / ("fastrtps_port" + std::to_string(port) + "_el")).string();
+    fd = ::open(path.c_str(), O_CREAT | O_RDONLY, 0666);
+    REQUIRE(fd >= 0);
+    REQUIRE(::flock(fd, LOCK_EX | LOCK_NB) == 0);
+  }
+  void Release() {
+    if (fd >= 0) ::close(fd);  // as the kernel does when the process ends
+    fd = -1;
+  }
+  ~HeldLock() { Release(); }
+};
+
+}  // namespace
+
+TEST_CASE("a port's listener is held while its lock is, free after, absent without a file", "[dds][shm]") {
+  using deif::dds::ListenerOf;
+  using deif::dds::PortListener;
+  TempDir dir;
+  const std::string d = dir.path.string();
+  CHECK(ListenerOf(7411, d) == PortListener::kAbsent);
+  HeldLock lock(dir.path, 7411);
+  CHECK(ListenerOf(7411, d) == PortListener::kHeld);
+  CHECK(ListenerOf(7411, d) == PortListener::kHeld);  // the probe took nothing for good
+  lock.Release();
+  CHECK(ListenerOf(7411, d) == PortListener::kFree);
+  // The probe left the file as it was: a listener can lock it again.
+  HeldLock again(dir.path, 7411);
+  CHECK(ListenerOf(7411, d) == PortListener::kHeld);
+}
+
+TEST_CASE("a process counts as ended once all its ports stay free for two checks, once", "[dds][shm]") {
+  using Watch = deif::dds::BasicEndedProcessWatch<int>;
+  TempDir dir;
+  Watch watch(dir.path.string());
+  HeldLock a1(dir.path, 7420), a2(dir.path, 7421), b1(dir.path, 7422), b2(dir.path, 7423);
+  watch.Watch({{1, {7420, 7421}}, {2, {7422, 7423}}, {3, {7424, 7425}}});  // 3: not on this host
+  CHECK(watch.Check().empty());
+  a1.Release();  // one port free is not an end (the other is held)
+  CHECK(watch.Check().empty());
+  CHECK(watch.Check().empty());
+  a2.Release();  // both free now
+  CHECK(watch.Check().empty());                    // a first check: maybe a port made anew
+  CHECK(watch.Check() == std::vector<int>{1});     // a second: ended
+  CHECK(watch.Check().empty());                    // told once
+  // A listener that makes its port anew lets go of the lock between two checks: not an end.
+  b1.Release();
+  b2.Release();
+  CHECK(watch.Check().empty());
+  HeldLock b1_again(dir.path, 7422), b2_again(dir.path, 7423);
+  CHECK(watch.Check().empty());
+  CHECK(watch.Check().empty());
+  // Ports never seen held (another host's, whose numbers this host does not use) are never an end.
+  CHECK(watch.Check().empty());
+}
+
+TEST_CASE("a process no longer watched is not reported; watched anew with other ports, it starts over",
+          "[dds][shm]") {
+  using Watch = deif::dds::BasicEndedProcessWatch<int>;
+  TempDir dir;
+  Watch watch(dir.path.string());
+  HeldLock a(dir.path, 7430);
+  watch.Watch({{1, {7430}}});
+  CHECK(watch.Check().empty());
+  a.Release();
+  CHECK(watch.Check().empty());
+  watch.Watch({});  // its participant is gone by the lease already
+  CHECK(watch.Check().empty());
+  CHECK(watch.Check().empty());
+  HeldLock b(dir.path, 7431);
+  watch.Watch({{1, {7431}}});
+  CHECK(watch.Check().empty());
+  b.Release();
+  CHECK(watch.Check().empty());
+  CHECK(watch.Check() == std::vector<int>{1});
 }

@@ -122,6 +122,28 @@ def test_kill_one(work, domain):
     assert final_gap_error(res.out_dir, survivors) <= 1 * DEG
 
 
+def test_kill_seen_by_its_locks(work, domain):
+    """kill -9 of agent 3 at step 100 with a liveliness lease of 3 s: the target and the
+    survivors exclude it within 1 s, not after the lease and its grace (3.2 s), because on one
+    host the kernel released the locks of its shared-memory ports (docs/PROTOCOL.md, "A
+    process that ended"); the run still equals the simulation."""
+    res = launch(work, domain, agents=4, steps=300, faults=[launcher.Fault(100, "kill", 3)],
+                 overrides=["network.liveliness_lease_s=3.0"])
+    assert res.ok, res.why_not_ok()
+    fault = res.summary["faults"][0]
+    survivors = [1, 2, 4]
+    for j in survivors:
+        assert steps_of(res.out_dir, j) == list(range(1, 301))
+    lat = {j: t - fault["applied_unix_s"] for j, t in exclusion_times(res.out_dir, survivors, 3).items()}
+    print("kill-to-exclusion latency [s]:", {j: round(v, 3) for j, v in lat.items()})
+    assert sorted(lat) == survivors and max(lat.values()) < 1.0, lat
+    for name in ["target"] + [f"agent-{j}" for j in survivors]:
+        with open(os.path.join(res.out_dir, "logs", f"{name}.log")) as f:
+            assert "agent 3's process ended" in f.read(), name
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
+    assert worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+
+
 def test_down_to_two(work, domain):
     """N=5 killed down to 2: the two survivors equal the simulation and end pi/2 apart."""
     faults = [launcher.Fault(60, "kill", 5), launcher.Fault(120, "kill", 2), launcher.Fault(180, "kill", 4)]

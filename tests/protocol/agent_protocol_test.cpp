@@ -527,6 +527,38 @@ TEST_CASE("A held lapse of a peer the target's roll call no longer names counts 
   CHECK(net.agents.at(1)->Members().count(2) == 1);
 }
 
+TEST_CASE("An agent whose process ended is lost at once, without the grace, for the target and its "
+          "peers", "[protocol]") {
+  // docs/PROTOCOL.md, "A process that ended": the kernel released its ports' locks; a slow
+  // process keeps them, so there is nothing to wait for.
+  ScriptedNetwork net(kThreeAgents);
+  const double grace_s = net.config.network.liveliness_grace_s;
+  net.SetPeerGrace(20.0 * grace_s);
+  net.Start();
+  net.RunUntil(3);
+  const double killed_at = net.now;
+  // WHEN agent 3 is killed and no lapse is seen yet, but everyone learns its process ended
+  net.Kill(3, /*lapse=*/false);
+  // (a process that is not a member changes nothing)
+  net.ProcessEnded(1, 9);
+  CHECK(net.agents.at(1)->Members().size() == 3);
+  for (int reader : {deif::testing::kTarget, 1, 2}) net.ProcessEnded(reader, 3);
+  net.RunUntil(8);
+  // THEN the run went on with agents 1 and 2 before any grace could have passed
+  CHECK(net.now - killed_at < grace_s);
+  CHECK(net.target->AliveAgents() == std::set<AgentId>{1, 2});
+  for (AgentId id : {1, 2}) {
+    INFO("agent " << id);
+    CHECK(net.agents.at(id)->Members().size() == 2);
+    const auto& log = net.logs.at(id);
+    CHECK(std::any_of(log.begin(), log.end(), [](const std::string& l) {
+      return l.find("agent 3's process ended") != std::string::npos;
+    }));
+    CHECK(net.rows.at(id).back().complete);
+  }
+  for (StepIndex k = 4; k <= 8; ++k) CHECK(AllAgreeAt(net, k));
+}
+
 TEST_CASE("A peer that leaves after its contribution to the last step is logged as finished, "
           "not lost", "[protocol]") {
   ScriptedNetwork net(kThreeAgents);  // 30 steps

@@ -173,11 +173,24 @@ class ScriptedNetwork {
       Collect(reader);
     }
   }
+  // Tells `reader` that the process of `node` ended (the transport saw its ports' locks go).
+  void ProcessEnded(int reader, int node) {
+    const SenderKey key = KeyOf(node, incarnation[node]);
+    if (reader == kTarget) {
+      target->OnProcessEnded(key, now);
+      CollectTarget();
+    } else {
+      agents.at(reader)->OnProcessEnded(key, now);
+      Collect(reader);
+    }
+  }
   // Everyone sees `writer` lost (a kill).
   // What it had queued dies with it (its peers see it lost a lease after its last message).
-  void Kill(int node) {
+  // lapse = false: nobody sees a lapse (yet).
+  void Kill(int node, bool lapse = true) {
     dead.insert(node);
     for (auto it = queue.begin(); it != queue.end();) it = it->from == node ? queue.erase(it) : it + 1;
+    if (!lapse) return;
     for (auto& [id, agent] : agents) {
       if (id != node && dead.count(id) == 0) Liveliness(id, node, false);
     }
