@@ -1377,7 +1377,7 @@ std::vector<int> Node::ShmPortsListened() const {
 std::vector<protocol::SenderKey> Node::EndedAgents(double every_s) {
   Impl& d = *impl_;
   const auto now = Clock::now();
-  if (now < d.next_ended_check || d.participant == nullptr) return {};
+  if (!d.config.network.process_watch || now < d.next_ended_check || d.participant == nullptr) return {};
   d.next_ended_check = now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(every_s));
   // This host's id as Fast DDS puts it in the GUID prefix (bytes 2-3) and in its
   // shared-memory locators (address bytes 1-2).

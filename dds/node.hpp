@@ -142,7 +142,8 @@ class Node {
   // key of their participant (SameProcess with their writers), each once: the kernel released
   // the locks of all of its shared-memory ports, which a frozen or starved process keeps
   // (docs/PROTOCOL.md, "A process that ended"). Checked at most every `every_s` (else
-  // empty); never reports participants on other hosts or without shared memory.
+  // empty); never reports participants on other hosts or without shared memory, nor with
+  // network.process_watch: false.
   std::vector<protocol::SenderKey> EndedAgents(double every_s);
   // Those of them that a peer replaced under this process (it removed the port's segment and
   // made a new one, as Fast DDS 2.9.1 does with a port it takes for a dead process's) and

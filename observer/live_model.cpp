@@ -180,6 +180,15 @@ void LiveModel::OnState(const protocol::StateMsg& msg, const protocol::SenderKey
   Touch(now_s);
 }
 
+void LiveModel::OnProcessEnded(const protocol::SenderKey& participant, double now_s) {
+  std::vector<AgentId> ended;
+  for (const auto& [writer, id] : state_writers_) {
+    if (protocol::SameProcess(writer, participant) && agents_[id].writer == writer) ended.push_back(id);
+  }
+  for (AgentId id : ended) SetLive(id, false, now_s);
+  if (!ended.empty()) Touch(now_s);
+}
+
 void LiveModel::OnLiveliness(WriterKind kind, const protocol::SenderKey& writer, bool alive,
                              double now_s) {
   if (kind == WriterKind::kState) {

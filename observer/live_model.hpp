@@ -87,6 +87,10 @@ class LiveModel {
   void OnState(const protocol::StateMsg& msg, const protocol::SenderKey& from,
                double written_unix_s, double now_s);
   void OnLiveliness(WriterKind kind, const protocol::SenderKey& writer, bool alive, double now_s);
+  // An agent's process ended: the transport saw the locks of its participant's shared-memory
+  // ports released (docs/PROTOCOL.md, "A process that ended"). Not live from now on, as a
+  // lapse would say later. Its state writer is SameProcess with `participant`.
+  void OnProcessEnded(const protocol::SenderKey& participant, double now_s);
   // With DDS Security the transport knows that a state's writer may not speak for the id it
   // claims (docs/SECURITY.md): the state is ignored and counted, never shown.
   void OnUnauthorised(AgentId claimed, double now_s);

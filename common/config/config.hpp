@@ -104,6 +104,7 @@ struct NetworkConfig {
   int tree_fanout = 0;               // exchange: tree: children per relay; 0: auto
   double relay_wait_s = 0.02;        // exchange: tree: a relay's longest wait for its children
   double relay_lease_s = 0.0;        // exchange: tree: a parent's relay writer's lease; 0: liveliness_lease_s
+  bool process_watch = true;         // lose a peer on this host once its process ended (port locks)
   TransportKind transport = TransportKind::kShm;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
   std::string discovery_server = "127.0.0.1:11811";  // host:port, with discovery: server

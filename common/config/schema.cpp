@@ -625,6 +625,13 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "tree_fanout readers, so this lease need not grow with N. An idle relay writer "
            "renews it up to 3 times a lease (at most liveliness_assertions_per_lease). 0: "
            "liveliness_lease_s (docs/SCALING.md, \"Losing a relay\").");
+  t.Add("process_watch", [](Config& c) -> auto& { return c.network.process_watch; })
+      .Default(true)
+      .Doc("On one host, take an agent whose process ended (kill -9, a crash: the kernel "
+           "released the locks of its shared-memory ports) for lost at once, instead of after "
+           "its liveliness lease and grace; a frozen or starved process keeps its locks "
+           "(docs/PROTOCOL.md, \"A process that ended\"). false: liveliness alone, as between "
+           "hosts.");
   t.Add("transport", [](Config& c) -> auto& { return c.network.transport; })
       .Default(TransportKind::kShm)
       .Doc("shm: shared memory between processes on one host, plus UDPv4 for the others "

@@ -890,11 +890,14 @@ def test_tree_silent_relay_left_at_once(work, domain):
     writer's short (0.4 s): relay 2 killed at step 40. Its children 4 and 5 take it for lost
     once its relay writer has been silent for the relay lease plus the grace, and move under
     1 long before the members lose it: within 10 steps of the kill (1 s, against the 32
-    steps of the lease) they fuse the contributions of every live agent again."""
+    steps of the lease) they fuse the contributions of every live agent again. Without
+    network.process_watch, as between hosts: on one host the agents would see relay 2's
+    process end at once (docs/PROTOCOL.md, "A process that ended")."""
     faults = [launcher.Fault(40, "kill", 2)]
     res = launch(work, domain, agents=7, steps=120, faults=faults,
                  overrides=TREE + ["scenario.mode=realtime", "scenario.period_s=0.1",
-                                   "network.liveliness_lease_s=3.0", "network.relay_lease_s=0.4"])
+                                   "network.liveliness_lease_s=3.0", "network.relay_lease_s=0.4",
+                                   "network.process_watch=false"])
     assert res.ok, res.why_not_ok()
     for j in (4, 5):
         moves = relay_log_lines(res.out_dir, j)

@@ -71,6 +71,26 @@ TEST_CASE("live model: an agent whose writer loses liveliness mid-run is lost an
   CHECK(marked);
 }
 
+TEST_CASE("live model: an agent whose process ended is lost at once, the others not") {
+  // GIVEN three agents alive at step 3 of 10 (writer n's participant: the same first bytes)
+  LiveModel model(ThreeAgents(), kRun, "r");
+  AllWrite(model, 3, 0.1, {0.0, 2.0, 4.0});
+  REQUIRE(model.AliveCount() == 3);
+  protocol::SenderKey participant_of_2 = Writer(2);
+  participant_of_2[15] = 0xc1;  // another entity of the same participant
+  // WHEN the process of an unknown participant ends, then agent 2's
+  model.OnProcessEnded(Writer(9), 0.4);
+  CHECK(model.AliveCount() == 3);
+  model.OnProcessEnded(participant_of_2, 0.5);
+  // THEN agent 2 is lost (marked once), with no lapse reported
+  CHECK(model.StatusOf(2) == "lost");
+  CHECK(model.AliveCount() == 2);
+  CHECK(CountMarks(model, "lost", 2) == 1);
+  // and its lapse, reported later, changes nothing
+  model.OnLiveliness(WriterKind::kState, Writer(2), false, 1.0);
+  CHECK(CountMarks(model, "lost", 2) == 1);
+}
+
 TEST_CASE("live model: agents that end after the last step are done, not lost") {
   LiveModel model(ThreeAgents(10), kRun, "r");
   AllWrite(model, 10, 0.1, {0.0, 2.0, 4.0});
