@@ -584,13 +584,18 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
   // The agents of the watched run that are up, whose participants listen on shared-memory
   // ports of the host `host` (the two bytes of a Fast DDS shared-memory locator and GUID
   // prefix that name a host), and those ports, by participant.
-  std::map<protocol::SenderKey, std::vector<int>> AgentShmPorts(std::array<std::uint8_t, 2> host) const {
+  // agents: the agent id of each of those participants.
+  std::map<protocol::SenderKey, std::vector<int>> AgentShmPorts(std::array<std::uint8_t, 2> host,
+                                                                std::map<protocol::SenderKey, AgentId>& agents) const {
     std::lock_guard<std::mutex> lock(mutex_);
     std::map<protocol::SenderKey, std::vector<int>> ports;
+    agents.clear();
     for (const auto& [guid, peer] : peers_) {
       if (peer.agent <= 0 || peer.gone || peer.shm_ports.empty() || peer.shm_ports.front().first != host) continue;
-      std::vector<int>& list = ports[ToKey(fdds::InstanceHandle_t(guid))];
+      const protocol::SenderKey key = ToKey(fdds::InstanceHandle_t(guid));
+      std::vector<int>& list = ports[key];
       for (const auto& [port_host, port] : peer.shm_ports) list.push_back(port);
+      agents[key] = peer.agent;
     }
     return ports;
   }
@@ -839,7 +844,8 @@ struct Node::Impl {
   Clock::time_point next_port_check{};
   // The processes of the run's agents on this host, by their ports' locks (EndedAgents).
   EndedProcessWatch ended_watch;
-  Clock::time_point next_ended_check{};
+  std::map<protocol::SenderKey, AgentId> ended_watch_agents;  // the agent of each participant watched
+  Clock::time_point next_ended_check{}, next_suspects_check{};
 
   std::mutex events_mutex;
   std::vector<LivelinessChange> liveliness_events;  // guarded by events_mutex
@@ -1374,16 +1380,30 @@ std::vector<int> Node::ShmPortsListened() const {
   return impl_->port_watch ? impl_->port_watch->ports() : std::vector<int>{};
 }
 
-std::vector<protocol::SenderKey> Node::EndedAgents(double every_s) {
+std::vector<protocol::SenderKey> Node::EndedAgents(double every_s, const std::set<AgentId>& suspects,
+                                                   double suspects_every_s) {
   Impl& d = *impl_;
+  if (!d.config.network.process_watch || d.participant == nullptr) return {};
   const auto now = Clock::now();
-  if (!d.config.network.process_watch || now < d.next_ended_check || d.participant == nullptr) return {};
-  d.next_ended_check = now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(every_s));
-  // This host's id as Fast DDS puts it in the GUID prefix (bytes 2-3) and in its
-  // shared-memory locators (address bytes 1-2).
-  const auto& prefix = d.participant->guid().guidPrefix.value;
-  d.ended_watch.Watch(d.participant_listener.AgentShmPorts({prefix[2], prefix[3]}));
-  return d.ended_watch.Check();
+  const auto after = [&now](double s) {
+    return now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
+  };
+  const bool all = now >= d.next_ended_check;
+  if (!all && (suspects.empty() || now < d.next_suspects_check)) return {};
+  d.next_suspects_check = after(suspects_every_s);
+  if (all) {
+    d.next_ended_check = after(every_s);
+    // This host's id as Fast DDS puts it in the GUID prefix (bytes 2-3) and in its
+    // shared-memory locators (address bytes 1-2).
+    const auto& prefix = d.participant->guid().guidPrefix.value;
+    d.ended_watch.Watch(d.participant_listener.AgentShmPorts({prefix[2], prefix[3]}, d.ended_watch_agents));
+    return d.ended_watch.Check();
+  }
+  std::set<protocol::SenderKey> only;
+  for (const auto& [key, id] : d.ended_watch_agents) {
+    if (suspects.count(id) > 0) only.insert(key);
+  }
+  return d.ended_watch.Check(only);
 }
 
 std::vector<int> Node::PortsLost() {

@@ -141,10 +141,12 @@ class Node {
   // The agents of the run on this host whose process has ended since the last call, by the
   // key of their participant (SameProcess with their writers), each once: the kernel released
   // the locks of all of its shared-memory ports, which a frozen or starved process keeps
-  // (docs/PROTOCOL.md, "A process that ended"). Checked at most every `every_s` (else
-  // empty); never reports participants on other hosts or without shared memory, nor with
+  // (docs/PROTOCOL.md, "A process that ended"). Every agent's at most every `every_s`, and
+  // in between those of the `suspects` at most every `suspects_every_s` (else empty); never
+  // reports participants on other hosts or without shared memory, nor with
   // network.process_watch: false.
-  std::vector<protocol::SenderKey> EndedAgents(double every_s);
+  std::vector<protocol::SenderKey> EndedAgents(double every_s, const std::set<AgentId>& suspects = {},
+                                               double suspects_every_s = 0.0);
   // Those of them that a peer replaced under this process (it removed the port's segment and
   // made a new one, as Fast DDS 2.9.1 does with a port it takes for a dead process's) and
   // that stayed replaced for a whole port check (dds/shm_ports.hpp): every peer that opens

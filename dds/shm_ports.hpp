@@ -79,6 +79,8 @@ class BasicEndedProcessWatch {
   // makes its own port anew lets go of the lock for a moment). A participant whose first
   // port is held costs one probe.
   std::vector<Key> Check();
+  // The same for the watched participants in `only` alone.
+  std::vector<Key> Check(const std::set<Key>& only);
 
  private:
   struct Watched {
@@ -106,9 +108,16 @@ void BasicEndedProcessWatch<Key>::Watch(const std::map<Key, std::vector<int>>& p
 
 template <typename Key>
 std::vector<Key> BasicEndedProcessWatch<Key>::Check() {
+  std::set<Key> all;
+  for (const auto& entry : watched_) all.insert(entry.first);
+  return Check(all);
+}
+
+template <typename Key>
+std::vector<Key> BasicEndedProcessWatch<Key>::Check(const std::set<Key>& only) {
   std::vector<Key> ended;
   for (auto& [key, w] : watched_) {
-    if (w.ended) continue;
+    if (w.ended || only.count(key) == 0) continue;
     bool held = false;  // one port held is enough: the process lives (one probe, mostly)
     for (int port : w.ports) {
       held = ListenerOf(port, dir_) == PortListener::kHeld;

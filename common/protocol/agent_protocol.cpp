@@ -269,13 +269,16 @@ void AgentProtocol::OnProcessEnded(const SenderKey& participant, double now_s) {
   }
 }
 
-bool AgentProtocol::MemberOutOfRollCall() const {
+std::set<AgentId> AgentProtocol::MembersOutOfRollCall() const {
+  std::set<AgentId> out;
   const std::vector<AgentId>* roll_call = NewestRollCall();
-  if (roll_call == nullptr) return false;
+  if (roll_call == nullptr) return out;
   for (const auto& [id, peer] : peers_) {
-    if (peer.writer && peer.alive && !std::binary_search(roll_call->begin(), roll_call->end(), id)) return true;
+    if (id != id_ && peer.writer && peer.alive && !std::binary_search(roll_call->begin(), roll_call->end(), id)) {
+      out.insert(id);
+    }
   }
-  return false;
+  return out;
 }
 
 const std::vector<AgentId>* AgentProtocol::NewestRollCall() const {

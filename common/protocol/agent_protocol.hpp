@@ -121,10 +121,10 @@ class AgentProtocol {
   // docs/PROTOCOL.md, "A process that ended"). A loss at once, without a grace: a process that
   // is slow keeps its locks. Its writers are those SameProcess with `participant`.
   void OnProcessEnded(const SenderKey& participant, double now_s);
-  // Whether the target's newest roll call leaves out a peer this agent still counts as a
-  // member (the target saw it gone, or it is catching up): the transport then looks for the
-  // end of its process more often (docs/PROTOCOL.md, "A process that ended").
-  bool MemberOutOfRollCall() const;
+  // The peers this agent still counts as members that the target's newest roll call leaves
+  // out (the target saw them gone, or they are catching up): the transport then looks for
+  // the end of their processes more often (docs/PROTOCOL.md, "A process that ended").
+  std::set<AgentId> MembersOutOfRollCall() const;
   // This process itself was away (frozen or starved; its loop stood still) until now: a
   // lapse of a peer's or the target's writer within hold_s from now counts only if it lasts
   // until then. Its peers were not gone; it read nothing (docs/PROTOCOL.md, "Slow is not

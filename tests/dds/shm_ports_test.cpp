@@ -210,3 +210,18 @@ TEST_CASE("a process no longer watched is not reported; watched anew with other 
   CHECK(watch.Check().empty());
   CHECK(watch.Check() == std::vector<int>{1});
 }
+
+TEST_CASE("a check of some participants probes and reports those alone", "[dds][shm]") {
+  using Watch = deif::dds::BasicEndedProcessWatch<int>;
+  TempDir dir;
+  Watch watch(dir.path.string());
+  HeldLock a(dir.path, 7440), b(dir.path, 7441);
+  watch.Watch({{1, {7440}}, {2, {7441}}});
+  CHECK(watch.Check().empty());
+  a.Release();
+  b.Release();
+  CHECK(watch.Check({1}).empty());
+  CHECK(watch.Check({1}) == std::vector<int>{1});  // 2 was not probed: one free look so far
+  CHECK(watch.Check().empty());
+  CHECK(watch.Check() == std::vector<int>{2});
+}
