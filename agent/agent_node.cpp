@@ -16,9 +16,10 @@ namespace deif::agent {
 namespace {
 
 constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
-// How often it looks for peers' processes that ended (docs/PROTOCOL.md, "A process that
-// ended"); the loop wakes for it too.
-constexpr double kEndedCheckS = 0.25;
+// How often it looks at every peer's process (docs/PROTOCOL.md, "A process that ended"): to
+// see each alive once; and at those the target's roll call left out (the target looks
+// often, for everyone).
+constexpr double kEndedCheckS = 2.0;
 constexpr double kEndedCheckSuspectS = 0.02;
 // Writers kept per parent: its relay writer, and that of each process that restarted as it.
 constexpr std::size_t kMaxParentWriters = 16;
@@ -165,7 +166,7 @@ int AgentNode::Run() {
       const std::optional<double> relay = tree_->NextDeadline();
       if (relay && (!wake || *relay < *wake)) wake = relay;
     }
-    const dds::Clock::time_point wake_by = dds::WakeBy(wake, kEndedCheckS);
+    const dds::Clock::time_point wake_by = dds::WakeBy(wake, kMaxWaitS);
     const double wait_from_s = dds::ToSeconds(dds::Clock::now());
     const std::vector<dds::Event> events = node_.Wait(wake_by);
     const double now_s = dds::ToSeconds(dds::Clock::now());
@@ -444,8 +445,8 @@ void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
 }
 
 double AgentNode::AwayAfterS() const {
-  // The loop wakes at least every kEndedCheckS; away longer than a lease of its peers'
-  // writers, they lapse in its view (and never less than 1 s: twice kMaxWaitS).
+  // The loop wakes at least every kMaxWaitS; away longer than a lease of its peers' writers,
+  // they lapse in its view.
   return std::max(2.0 * kMaxWaitS, timings_.liveliness_lease_s);
 }
 

@@ -1392,7 +1392,9 @@ std::vector<protocol::SenderKey> Node::EndedAgents(double every_s, const std::se
   if (!all && (suspects.empty() || now < d.next_suspects_check)) return {};
   d.next_suspects_check = after(suspects_every_s);
   if (all) {
-    d.next_ended_check = after(every_s);
+    // Spread over the interval, so that the processes of a run do not all look at once.
+    static thread_local std::minstd_rand jitter{std::random_device{}()};
+    d.next_ended_check = after(every_s * std::uniform_real_distribution<double>(0.5, 1.5)(jitter));
     // This host's id as Fast DDS puts it in the GUID prefix (bytes 2-3) and in its
     // shared-memory locators (address bytes 1-2).
     const auto& prefix = d.participant->guid().guidPrefix.value;

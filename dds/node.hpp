@@ -141,7 +141,8 @@ class Node {
   // The agents of the run on this host whose process has ended since the last call, by the
   // key of their participant (SameProcess with their writers), each once: the kernel released
   // the locks of all of its shared-memory ports, which a frozen or starved process keeps
-  // (docs/PROTOCOL.md, "A process that ended"). Every agent's at most every `every_s`, and
+  // (docs/PROTOCOL.md, "A process that ended"). Every agent's about every `every_s` (0.5 to
+  // 1.5 times, at random, so that the processes of a run do not look at once), and
   // in between those of the `suspects` at most every `suspects_every_s` (else empty); never
   // reports participants on other hosts or without shared memory, nor with
   // network.process_watch: false.
