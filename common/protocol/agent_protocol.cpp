@@ -262,9 +262,7 @@ void AgentProtocol::OnProcessEnded(const SenderKey& participant, double now_s) {
   }
   for (const SenderKey& writer : ended) {
     lapses_.Confirm(writer);
-    Log(LogLevel::kInfo, "agent " + std::to_string(writer_ids_.at(writer)) +
-                             "'s process ended (the locks of its shared-memory ports were released)");
-    ApplyLiveliness(writer, false, now_s);
+    ApplyLiveliness(writer, false, now_s, kProcessEnded);
     if (finished_) return;
   }
 }
@@ -315,7 +313,7 @@ void AgentProtocol::ConfirmLapses(double now_s) {
   }
 }
 
-void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s) {
+void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why) {
   if (target_writer_ && writer == *target_writer_) {
     target_alive_ = alive;
     LogOnce(alive ? LogLevel::kInfo : LogLevel::kWarn,
@@ -344,7 +342,7 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
     // lost (a peer that is behind sees the others leave first).
     Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " left after the last step; members now " + members);
   } else {
-    Log(LogLevel::kWarn, "agent " + std::to_string(bound->second) + " lost (liveliness); members now " + members);
+    Log(LogLevel::kWarn, "agent " + std::to_string(bound->second) + " lost (" + why + "); members now " + members);
   }
   Advance(now_s);
 }

@@ -184,7 +184,8 @@ class AgentProtocol {
  private:
   long merges_computed_ = 0;  // merges_computed()
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
-  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // why: what the loss line says it came from.
+  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why = "liveliness");
   // The target's newest roll call this agent holds: of a range waiting, or of the newest
   // step; nullptr before any.
   const std::vector<AgentId>* NewestRollCall() const;

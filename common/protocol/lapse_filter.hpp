@@ -13,6 +13,10 @@
 
 namespace deif::protocol {
 
+// What a loss line says when the transport saw the peer's process end instead of a lapse
+// (docs/PROTOCOL.md, "A process that ended").
+inline constexpr const char* kProcessEnded = "its process ended: the locks of its shared-memory ports were released";
+
 // Keyed by whatever names a writer: its key (a peer's or the target's writer), or the agent
 // whose writer it is (a parent's relay writer, TreeExchange).
 template <typename Key>

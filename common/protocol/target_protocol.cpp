@@ -80,9 +80,7 @@ void TargetProtocol::OnProcessEnded(const SenderKey& participant, double now_s) 
   }
   for (const SenderKey& writer : ended) {
     lapses_.Confirm(writer);
-    Log(LogLevel::kInfo, "agent " + std::to_string(writer_ids_.at(writer)) +
-                             "'s process ended (the locks of its shared-memory ports were released)");
-    ApplyLiveliness(writer, false, now_s);
+    ApplyLiveliness(writer, false, now_s, kProcessEnded);
   }
 }
 
@@ -90,7 +88,7 @@ void TargetProtocol::ConfirmLapses(double now_s) {
   for (const SenderKey& writer : lapses_.Due(now_s)) ApplyLiveliness(writer, false, now_s);
 }
 
-void TargetProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s) {
+void TargetProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why) {
   auto bound = writer_ids_.find(writer);
   if (bound == writer_ids_.end()) return;
   Agent& agent = agents_[bound->second];
@@ -101,7 +99,7 @@ void TargetProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double
     last_new_agent_s_ = now_s;
     Log(LogLevel::kInfo, who + " alive again");
   } else {
-    Log(LogLevel::kWarn, who + " lost (liveliness): not measured or waited for any more");
+    Log(LogLevel::kWarn, who + " lost (" + why + "): not measured or waited for any more");
   }
   Advance(now_s);
 }

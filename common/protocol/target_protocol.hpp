@@ -97,7 +97,8 @@ class TargetProtocol {
 
  private:
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
-  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s);
+  // why: what the loss line says it came from.
+  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why = "liveliness");
   // Acts on the held losses whose grace is over.
   void ConfirmLapses(double now_s);
   std::optional<double> PhaseDeadline() const;

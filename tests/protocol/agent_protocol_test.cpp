@@ -552,7 +552,7 @@ TEST_CASE("An agent whose process ended is lost at once, without the grace, for 
     CHECK(net.agents.at(id)->Members().size() == 2);
     const auto& log = net.logs.at(id);
     CHECK(std::any_of(log.begin(), log.end(), [](const std::string& l) {
-      return l.find("agent 3's process ended") != std::string::npos;
+      return l.find("agent 3 lost (its process ended") != std::string::npos;
     }));
     CHECK(net.rows.at(id).back().complete);
   }
