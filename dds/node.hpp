@@ -143,7 +143,8 @@ class Node {
   // the locks of all of its shared-memory ports, which a frozen or starved process keeps
   // (docs/PROTOCOL.md, "A process that ended"). Every agent's about every `every_s` (0.5 to
   // 1.5 times, at random, so that the processes of a run do not look at once), and
-  // in between those of the `suspects` at most every `suspects_every_s` (else empty); never
+  // in between those of the `suspects` (those the target's roll call left out: one free look
+  // of their locks is enough) at most every `suspects_every_s` (else empty); never
   // reports participants on other hosts or without shared memory, nor with
   // network.process_watch: false.
   std::vector<protocol::SenderKey> EndedAgents(double every_s, const std::set<AgentId>& suspects = {},

@@ -81,8 +81,9 @@ class BasicEndedProcessWatch {
   // makes its own port anew lets go of the lock for a moment). A participant whose first
   // port is held costs one probe.
   std::vector<Key> Check();
-  // The same for the watched participants in `only` alone.
-  std::vector<Key> Check(const std::set<Key>& only);
+  // The same for the watched participants in `only` alone, ended after `looks` free probes
+  // in a row (1: another process, which looked twice, already said so).
+  std::vector<Key> Check(const std::set<Key>& only, int looks = 2);
 
  private:
   struct Watched {
@@ -116,7 +117,7 @@ std::vector<Key> BasicEndedProcessWatch<Key>::Check() {
 }
 
 template <typename Key>
-std::vector<Key> BasicEndedProcessWatch<Key>::Check(const std::set<Key>& only) {
+std::vector<Key> BasicEndedProcessWatch<Key>::Check(const std::set<Key>& only, int looks) {
   std::vector<Key> ended;
   for (auto& [key, w] : watched_) {
     if (w.ended || only.count(key) == 0) continue;
@@ -127,7 +128,7 @@ std::vector<Key> BasicEndedProcessWatch<Key>::Check(const std::set<Key>& only) {
     }
     w.held = w.held || held;
     w.free_checks = held ? 0 : w.free_checks + 1;
-    if (w.held && w.free_checks >= 2) {
+    if (w.held && w.free_checks >= looks) {
       w.ended = true;
       ended.push_back(key);
     }

@@ -8,6 +8,7 @@
 
 #include "common/config/initial_state.hpp"
 #include "common/core/control_law.hpp"
+#include "common/protocol/lapse_filter.hpp"
 
 namespace deif::observer {
 
@@ -112,6 +113,10 @@ void LiveModel::OnRange(const protocol::RangeMsg& msg, const protocol::SenderKey
     if (msg.measured) data.sensors[msg.agent_id] = msg.p_sensor;
     data.roll_call = msg.roll_call;
   }
+  if (msg.step >= newest_roll_call_step_) {
+    newest_roll_call_step_ = msg.step;
+    newest_roll_call_ = msg.roll_call;
+  }
   NoteStep(msg.step, now_s);
   FinaliseSteps(now_s, false);
 }
@@ -185,8 +190,19 @@ void LiveModel::OnProcessEnded(const protocol::SenderKey& participant, double no
   for (const auto& [writer, id] : state_writers_) {
     if (protocol::SameProcess(writer, participant) && agents_[id].writer == writer) ended.push_back(id);
   }
-  for (AgentId id : ended) SetLive(id, false, now_s);
+  for (AgentId id : ended) SetLive(id, false, now_s, protocol::kProcessEnded);
   if (!ended.empty()) Touch(now_s);
+}
+
+std::set<AgentId> LiveModel::LiveOutOfRollCall() const {
+  std::set<AgentId> out;
+  if (newest_roll_call_step_ == 0) return out;
+  for (const auto& [id, a] : agents_) {
+    if (a.seen && a.live && std::find(newest_roll_call_.begin(), newest_roll_call_.end(), id) == newest_roll_call_.end()) {
+      out.insert(id);
+    }
+  }
+  return out;
 }
 
 void LiveModel::OnLiveliness(WriterKind kind, const protocol::SenderKey& writer, bool alive,
@@ -271,7 +287,7 @@ LiveModel::StepData& LiveModel::Step(StepIndex step, double now_s) {
   return it->second;
 }
 
-void LiveModel::SetLive(AgentId id, bool live, double now_s) {
+void LiveModel::SetLive(AgentId id, bool live, double now_s, const char* why) {
   Agent& a = agents_[id];
   if (a.live == live) return;
   a.live = live;
@@ -285,7 +301,7 @@ void LiveModel::SetLive(AgentId id, bool live, double now_s) {
   auto& recent = live ? recent_returns_ : recent_losses_;
   recent.push_back({now_s, id});
   while (!recent.empty() && now_s - recent.front().first > options_.together_s) recent.pop_front();
-  AddMark(now_s, live ? "back" : "lost", id, who + (live ? " back" : " lost (liveliness)"));
+  AddMark(now_s, live ? "back" : "lost", id, who + (live ? std::string(" back") : " lost (" + std::string(why) + ")"));
   double& last = live ? last_heal_mark_s_ : last_partition_mark_s_;
   if (recent.size() >= 2 && now_s - last > options_.together_s) {
     std::vector<AgentId> ids;

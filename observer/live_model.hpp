@@ -91,6 +91,9 @@ class LiveModel {
   // ports released (docs/PROTOCOL.md, "A process that ended"). Not live from now on, as a
   // lapse would say later. Its state writer is SameProcess with `participant`.
   void OnProcessEnded(const protocol::SenderKey& participant, double now_s);
+  // The live agents that the target's newest roll call leaves out: the transport looks for
+  // the end of their processes more often.
+  std::set<AgentId> LiveOutOfRollCall() const;
   // With DDS Security the transport knows that a state's writer may not speak for the id it
   // claims (docs/SECURITY.md): the state is ignored and counted, never shown.
   void OnUnauthorised(AgentId claimed, double now_s);
@@ -160,7 +163,8 @@ class LiveModel {
   void Finalise(StepIndex step, StepData& data);
   bool StepComplete(StepIndex step, const StepData& data) const;
   void FlushCounterMarks(double now_s, bool force);
-  void SetLive(AgentId id, bool live, double now_s);
+  // why: what a loss mark says it came from.
+  void SetLive(AgentId id, bool live, double now_s, const char* why = "liveliness");
   nlohmann::json AgentJson(AgentId id, const Agent& a, bool full_trail) const;
   nlohmann::json CommonJson(double now_s) const;
   nlohmann::json SeriesJson(StepIndex after_step) const;
@@ -187,6 +191,8 @@ class LiveModel {
   std::map<StepIndex, StepData> steps_;        // not finalised yet
   StepIndex finalised_ = 0;
   StepIndex newest_step_ = 0;
+  std::vector<AgentId> newest_roll_call_;      // of the newest step a range came for
+  StepIndex newest_roll_call_step_ = 0;
   double newest_step_s_ = 0.0;                 // when newest_step_ began (observer clock)
   Pcrlb pcrlb_;
   std::optional<StepIndex> pcrlb_from_step_;

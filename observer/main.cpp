@@ -125,7 +125,9 @@ class Observer : public dds::Application {
       std::lock_guard<std::mutex> lock(mutex_);
       const double now = Now();
       for (const dds::Event& event : events) Dispatch(event, now);
-      for (const protocol::SenderKey& ended : node_.EndedAgents(0.1)) model_.OnProcessEnded(ended, now);
+      for (const protocol::SenderKey& ended : node_.EndedAgents(0.1, model_.LiveOutOfRollCall(), 0.02)) {
+        model_.OnProcessEnded(ended, now);
+      }
       model_.OnTimer(now);
       if (model_.UpdateDue(now)) {
         if (auto update = model_.TakeUpdate(now)) {

@@ -225,3 +225,14 @@ TEST_CASE("a check of some participants probes and reports those alone", "[dds][
   CHECK(watch.Check().empty());
   CHECK(watch.Check() == std::vector<int>{2});
 }
+
+TEST_CASE("a participant another process already found ended takes one free look", "[dds][shm]") {
+  using Watch = deif::dds::BasicEndedProcessWatch<int>;
+  TempDir dir;
+  Watch watch(dir.path.string());
+  HeldLock a(dir.path, 7450);
+  watch.Watch({{1, {7450}}});
+  CHECK(watch.Check({1}, 1).empty());  // held
+  a.Release();
+  CHECK(watch.Check({1}, 1) == std::vector<int>{1});
+}

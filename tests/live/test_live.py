@@ -147,6 +147,14 @@ def test_deif_run_live(work, domain):
                          float(agent_1[k]["y_est"]) - float(truth[k]["y_true"]))
         assert math.isclose(float(r["error"]), err, rel_tol=1e-12, abs_tol=1e-15), k
     assert with_estimate >= 0.8 * len(live), f"only {with_estimate} steps with an estimate"
-    assert int(live[50]["alive"]) == 4 and int(live[120]["alive"]) == 3
+    # Agent 2 is alive before the kill, lost after it (a mark), and counted out from the mark
+    # on. On one host the target drops it from the roll calls within a few tenths of a
+    # second (its process ended), and lock-step then races on: the observer, which looks for
+    # itself, may write some steps after the kill before it knows.
+    marks = artefacts.read_csv(os.path.join(out, "observer_marks.csv"))
+    lost = [int(m["step"]) for m in marks if m["kind"] == "lost" and m["agent"] == "2"]
+    assert int(live[50]["alive"]) == 4 and len(lost) == 1 and lost[0] >= 59, (lost, marks)
+    assert all(int(live[k]["alive"]) == 3 for k in range(lost[0] + 1, 121)), \
+        [(k, live[k]["alive"]) for k in range(lost[0] + 1, 121)]
     latency = artefacts.read_csv(os.path.join(out, "observer_latency.csv"))
     assert latency and all(0.0 <= float(r["write_to_send_s"]) < 60.0 for r in latency)

@@ -91,6 +91,23 @@ TEST_CASE("live model: an agent whose process ended is lost at once, the others 
   CHECK(CountMarks(model, "lost", 2) == 1);
 }
 
+TEST_CASE("live model: the live agents the target's newest roll call leaves out") {
+  LiveModel model(ThreeAgents(), kRun, "r");
+  AllWrite(model, 3, 0.1, {0.0, 2.0, 4.0});
+  CHECK(model.LiveOutOfRollCall().empty());  // no roll call yet
+  protocol::RangeMsg range;
+  range.run = kRun;
+  range.agent_id = 1;
+  range.step = 4;
+  range.measured = true;
+  range.p_sensor = Vector2(2.0, 0.0);
+  range.roll_call = {1, 3};
+  model.OnRange(range, Writer(7), 0.2);
+  CHECK(model.LiveOutOfRollCall() == std::set<AgentId>{2});
+  model.OnLiveliness(WriterKind::kState, Writer(2), false, 0.3);  // lost: no longer live
+  CHECK(model.LiveOutOfRollCall().empty());
+}
+
 TEST_CASE("live model: agents that end after the last step are done, not lost") {
   LiveModel model(ThreeAgents(10), kRun, "r");
   AllWrite(model, 10, 0.1, {0.0, 2.0, 4.0});
