@@ -204,7 +204,7 @@ int AgentNode::Run() {
     // More often while the target's roll call leaves out a member: the target may have seen
     // its process end already.
     for (const protocol::SenderKey& ended :
-         node_.EndedAgents(kEndedCheckS, protocol_.MembersOutOfRollCall(), kEndedCheckSuspectS)) {
+         node_.EndedAgents(kEndedCheckS, [this] { return protocol_.MembersOutOfRollCall(); }, kEndedCheckSuspectS)) {
       protocol_.OnProcessEnded(ended, now_s);
     }
     ReportMatches(now_s);

@@ -1380,7 +1380,8 @@ std::vector<int> Node::ShmPortsListened() const {
   return impl_->port_watch ? impl_->port_watch->ports() : std::vector<int>{};
 }
 
-std::vector<protocol::SenderKey> Node::EndedAgents(double every_s, const std::set<AgentId>& suspects,
+std::vector<protocol::SenderKey> Node::EndedAgents(double every_s,
+                                                   const std::function<std::set<AgentId>()>& suspects,
                                                    double suspects_every_s) {
   Impl& d = *impl_;
   if (!d.config.network.process_watch || d.participant == nullptr) return {};
@@ -1389,8 +1390,7 @@ std::vector<protocol::SenderKey> Node::EndedAgents(double every_s, const std::se
     return now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
   };
   const bool all = now >= d.next_ended_check;
-  if (!all && (suspects.empty() || now < d.next_suspects_check)) return {};
-  d.next_suspects_check = after(suspects_every_s);
+  if (!all && (!suspects || now < d.next_suspects_check)) return {};
   if (all) {
     // Spread over the interval, so that the processes of a run do not all look at once.
     static thread_local std::minstd_rand jitter{std::random_device{}()};
@@ -1401,9 +1401,12 @@ std::vector<protocol::SenderKey> Node::EndedAgents(double every_s, const std::se
     d.ended_watch.Watch(d.participant_listener.AgentShmPorts({prefix[2], prefix[3]}, d.ended_watch_agents));
     return d.ended_watch.Check();
   }
+  const std::set<AgentId> ids = suspects();
+  if (ids.empty()) return {};
+  d.next_suspects_check = after(suspects_every_s);
   std::set<protocol::SenderKey> only;
   for (const auto& [key, id] : d.ended_watch_agents) {
-    if (suspects.count(id) > 0) only.insert(key);
+    if (ids.count(id) > 0) only.insert(key);
   }
   // One free look: the target, which looked twice, left them out of its roll call.
   return d.ended_watch.Check(only, 1);

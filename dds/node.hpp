@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <set>
@@ -147,7 +148,9 @@ class Node {
   // of their locks is enough) at most every `suspects_every_s` (else empty); never
   // reports participants on other hosts or without shared memory, nor with
   // network.process_watch: false.
-  std::vector<protocol::SenderKey> EndedAgents(double every_s, const std::set<AgentId>& suspects = {},
+  // `suspects` is asked only when their look is due (it runs in the application's loop).
+  std::vector<protocol::SenderKey> EndedAgents(double every_s,
+                                               const std::function<std::set<AgentId>()>& suspects = nullptr,
                                                double suspects_every_s = 0.0);
   // Those of them that a peer replaced under this process (it removed the port's segment and
   // made a new one, as Fast DDS 2.9.1 does with a port it takes for a dead process's) and

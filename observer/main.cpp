@@ -125,7 +125,7 @@ class Observer : public dds::Application {
       std::lock_guard<std::mutex> lock(mutex_);
       const double now = Now();
       for (const dds::Event& event : events) Dispatch(event, now);
-      for (const protocol::SenderKey& ended : node_.EndedAgents(0.1, model_.LiveOutOfRollCall(), 0.02)) {
+      for (const protocol::SenderKey& ended : node_.EndedAgents(0.1, [this] { return model_.LiveOutOfRollCall(); }, 0.02)) {
         model_.OnProcessEnded(ended, now);
       }
       model_.OnTimer(now);
