@@ -1328,9 +1328,11 @@ std::vector<Event> Node::Wait(Clock::time_point deadline) {
 void Node::Wake() { impl_->guard.set_trigger_value(true); }
 
 bool Node::WaitForAcknowledgments(double seconds) {
+  const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
   bool all = true;
   for (auto& [topic, writer] : impl_->every_writer) {
-    all = writer->wait_for_acknowledgments(DdsDuration(seconds)) == ReturnCode_t::RETCODE_OK && all;
+    const double left_s = std::max(0.0, std::chrono::duration<double>(deadline - Clock::now()).count());
+    all = writer->wait_for_acknowledgments(DdsDuration(left_s)) == ReturnCode_t::RETCODE_OK && all;
   }
   return all;
 }
