@@ -1328,13 +1328,22 @@ std::vector<Event> Node::Wait(Clock::time_point deadline) {
 void Node::Wake() { impl_->guard.set_trigger_value(true); }
 
 bool Node::WaitForAcknowledgments(double seconds) {
+  // Every writer has the whole window at once: one at a time, a writer whose reader left
+  // without a goodbye used it up before the next one was looked at.
   const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
-  bool all = true;
-  for (auto& [topic, writer] : impl_->every_writer) {
-    const double left_s = std::max(0.0, std::chrono::duration<double>(deadline - Clock::now()).count());
-    all = writer->wait_for_acknowledgments(DdsDuration(left_s)) == ReturnCode_t::RETCODE_OK && all;
+  std::vector<fdds::DataWriter*> pending;
+  for (auto& [topic, writer] : impl_->every_writer) pending.push_back(writer);
+  while (true) {
+    pending.erase(std::remove_if(pending.begin(), pending.end(),
+                                 [](fdds::DataWriter* writer) {
+                                   return writer->wait_for_acknowledgments(DdsDuration(0.0)) ==
+                                          ReturnCode_t::RETCODE_OK;
+                                 }),
+                  pending.end());
+    const auto now = Clock::now();
+    if (pending.empty() || now >= deadline) return pending.empty();
+    std::this_thread::sleep_for(std::min<Clock::duration>(deadline - now, std::chrono::milliseconds(2)));
   }
-  return all;
 }
 
 bool Node::Secure() const { return impl_->secure; }

@@ -99,8 +99,8 @@ class Node {
   // Thread-safe: makes a Wait() return at once.
   void Wake();
 
-  // Waits until every matched reader acknowledged this node's samples, for `seconds` in all
-  // (not per writer: a reader that left without a goodbye never acknowledges, and the
+  // Waits until every matched reader acknowledged this node's samples, for `seconds` in all,
+  // every writer at once (a reader that left without a goodbye never acknowledges, and the
   // target has a writer per agent).
   bool WaitForAcknowledgments(double seconds);
   // Whether network.security.enabled (docs/SECURITY.md).
