@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <chrono>
 #include <functional>
+#include <future>
+#include <sstream>
 #include <cstdlib>
 #include <stdexcept>
 #include <string>
@@ -12,7 +14,14 @@
 #include <vector>
 
 #include "common/config/config.hpp"
+#include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <fastdds/dds/log/Log.hpp>
+#include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/topic/Topic.hpp>
+
+#include "deifPubSubTypes.h"
 
 #include "dds/node.hpp"
 
@@ -235,4 +244,67 @@ TEST_CASE("a participant started again in place takes none of its predecessor's 
     }
   }
   ::unsetenv(deif::dds::kShmPortsUsedVariable);
+}
+
+TEST_CASE("the last wait for acknowledgements is bounded in all, not once per writer", "[dds][node]") {
+  // A reader that stops acknowledging, as one of an agent that left without a goodbye: its
+  // listener holds the receive thread from its first sample on, so the rest wait unread and
+  // unacknowledged. It matches every one of the target's 16 writers of ranges (the run's
+  // partition).
+  namespace fdds = eprosima::fastdds::dds;
+  struct Holding final : fdds::DataReaderListener {
+    std::promise<void> release;
+    std::shared_future<void> released = release.get_future().share();
+    void on_data_available(fdds::DataReader*) override { released.wait(); }
+  } holding;
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 16}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  deif::dds::Node target(config, "node-test-target", "node_acks");
+  target.AddWriter(Topic::kRange);
+  target.StartLiveliness();
+
+  auto* factory = fdds::DomainParticipantFactory::get_instance();
+  // A GUID prefix of another process: within one process Fast DDS hands samples over directly
+  // and counts them acknowledged whatever the reader does with them.
+  fdds::DomainParticipantQos participant_qos = fdds::PARTICIPANT_QOS_DEFAULT;
+  std::istringstream("01.0f.de.1f.ac.c5.00.01.00.00.00.01") >> participant_qos.wire_protocol().prefix;
+  fdds::DomainParticipant* participant = factory->create_participant(178, participant_qos);
+  REQUIRE(participant != nullptr);
+  fdds::TypeSupport type(new deif_msgs::RangePubSubType());
+  type.register_type(participant);
+  fdds::Topic* topic = participant->create_topic("deif/range", type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+  fdds::SubscriberQos subscriber_qos = fdds::SUBSCRIBER_QOS_DEFAULT;
+  subscriber_qos.partition().push_back("deif.node_acks");
+  fdds::Subscriber* subscriber = participant->create_subscriber(subscriber_qos);
+  fdds::DataReaderQos reader_qos = fdds::DATAREADER_QOS_DEFAULT;
+  reader_qos.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  fdds::DataReader* stuck = subscriber->create_datareader(topic, reader_qos, &holding);
+  REQUIRE(stuck != nullptr);
+  REQUIRE(Within(10.0, target, [&] {
+    fdds::SubscriptionMatchedStatus matched;
+    stuck->get_subscription_matched_status(matched);
+    return matched.current_count == 16;
+  }));
+
+  for (deif::AgentId id = 1; id <= 16; ++id) {
+    deif::protocol::RangeMsg range;
+    range.run = deif::protocol::RunTokenOf("node_acks");
+    range.agent_id = id;
+    range.step = 1;
+    target.Write(range);
+  }
+  // One at a time, writer by writer, this took at least 15 x 0.3 s.
+  const auto start = Clock::now();
+  CHECK_FALSE(target.WaitForAcknowledgments(0.3));
+  const double waited_s = std::chrono::duration<double>(Clock::now() - start).count();
+  CHECK(waited_s >= 0.3);
+  CHECK(waited_s < 3.0);
+
+  // Once that reader is gone, what is left is acknowledged.
+  holding.release.set_value();
+  subscriber->delete_datareader(stuck);
+  participant->delete_contained_entities();
+  factory->delete_participant(participant);
+  CHECK(Within(10.0, target, [&] { return target.MatchedReaders(Topic::kRange) == 0; }));
+  CHECK(target.WaitForAcknowledgments(0.3));
 }
