@@ -280,10 +280,12 @@ TEST_CASE("the last wait for acknowledgements is bounded in all, not once per wr
   reader_qos.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
   fdds::DataReader* stuck = subscriber->create_datareader(topic, reader_qos, &holding);
   REQUIRE(stuck != nullptr);
+  // Both sides: each learns of a match from the other's announcement. The target's
+  // participant matches a new reader with all its writers at once.
   REQUIRE(Within(10.0, target, [&] {
     fdds::SubscriptionMatchedStatus matched;
     stuck->get_subscription_matched_status(matched);
-    return matched.current_count == 16;
+    return matched.current_count == 16 && target.MatchedReaders(Topic::kRange) == 1;
   }));
 
   for (deif::AgentId id = 1; id <= 16; ++id) {
