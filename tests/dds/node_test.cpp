@@ -270,6 +270,19 @@ TEST_CASE("the last wait for acknowledgements is bounded in all, not once per wr
   std::istringstream("01.0f.de.1f.ac.c5.00.01.00.00.00.01") >> participant_qos.wire_protocol().prefix;
   fdds::DomainParticipant* participant = factory->create_participant(178, participant_qos);
   REQUIRE(participant != nullptr);
+  bool released = false;
+  const auto release_and_delete = [&] {  // also when a REQUIRE below ends the test
+    if (!released) holding.release.set_value();
+    released = true;
+    if (participant == nullptr) return;
+    participant->delete_contained_entities();
+    factory->delete_participant(participant);
+    participant = nullptr;
+  };
+  struct AtExit {
+    std::function<void()> run;
+    ~AtExit() { run(); }
+  } at_exit{release_and_delete};
   fdds::TypeSupport type(new deif_msgs::RangePubSubType());
   type.register_type(participant);
   fdds::Topic* topic = participant->create_topic("deif/range", type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
@@ -303,10 +316,7 @@ TEST_CASE("the last wait for acknowledgements is bounded in all, not once per wr
   CHECK(waited_s < 3.0);
 
   // Once that reader is gone, what is left is acknowledged.
-  holding.release.set_value();
-  subscriber->delete_datareader(stuck);
-  participant->delete_contained_entities();
-  factory->delete_participant(participant);
+  release_and_delete();
   CHECK(Within(10.0, target, [&] { return target.MatchedReaders(Topic::kRange) == 0; }));
   CHECK(target.WaitForAcknowledgments(0.3));
 }
