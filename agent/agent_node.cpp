@@ -214,6 +214,7 @@ int AgentNode::Run() {
     Pump();
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
     if (ThrowForTest()) dds::ThrowInAThreadForTest();
+    if (CrashForTest()) dds::CrashInAThreadForTest();
     if (dds::RestartForLostPorts(node_, *context_.log, "after step " + std::to_string(protocol_.last_written_step()),
                                  watching_ports_)) {
       WriteCounters();
@@ -251,6 +252,13 @@ bool AgentNode::ThrowForTest() {
   static const StepIndex at_step = dds::FaultThrowStep(std::to_string(id_));
   if (threw_for_test_ || at_step == 0 || protocol_.last_written_step() < at_step) return false;
   threw_for_test_ = true;
+  return true;
+}
+
+bool AgentNode::CrashForTest() {
+  static const StepIndex at_step = dds::FaultCrashStep(std::to_string(id_));
+  if (crashed_for_test_ || at_step == 0 || protocol_.last_written_step() < at_step) return false;
+  crashed_for_test_ = true;
   return true;
 }
 

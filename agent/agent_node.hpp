@@ -58,6 +58,7 @@ class AgentNode : public dds::Application {
   int Deaf();
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
   bool ThrowForTest();       // DEIF_FAULT_THROW (dds::FaultThrowStep), once
+  bool CrashForTest();       // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
   // Whether this agent's endpoint discovery stopped short of the participants it sees
   // (protocol::DiscoveryWatch) and it is to start again in place with a new participant. If
   // it already did so dds::kMaxRestartsInPlace times, it says so once and goes on.
@@ -90,6 +91,7 @@ class AgentNode : public dds::Application {
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   bool watching_ports_ = true;     // dds::RestartForLostPorts
   bool threw_for_test_ = false;    // ThrowForTest
+  bool crashed_for_test_ = false;  // CrashForTest
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
 };

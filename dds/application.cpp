@@ -207,25 +207,31 @@ void CloseOnExec() {
 // This program's command again, each option of `replaced` with its new value instead of the
 // old one, and --append (docs/RUNNING.md, "Restarting in place"); made before the
 // participant is deleted, so that a hang or crash in the deletion can still exec it.
+std::vector<std::string> RestartArguments(int argc, char** argv, const RestartOptions& replaced) {
+  std::vector<std::string> args;
+  for (int i = 0; i < argc; ++i) {
+    const std::string a = argv[i];
+    const auto is = [&a](const auto& option) { return a == option.first; };
+    const auto is_with_value = [&a](const auto& option) { return a.rfind(option.first + "=", 0) == 0; };
+    if (std::any_of(replaced.begin(), replaced.end(), is)) {
+      ++i;  // and its value
+      continue;
+    }
+    if (std::any_of(replaced.begin(), replaced.end(), is_with_value)) continue;
+    args.push_back(a);
+  }
+  for (const auto& [option, value] : replaced) {
+    args.push_back(option);
+    args.push_back(value);
+  }
+  if (std::find(args.begin(), args.end(), "--append") == args.end()) args.emplace_back("--append");
+  return args;
+}
+
 class RestartCommand {
  public:
-  RestartCommand(int argc, char** argv, const RestartOptions& replaced) {
-    for (int i = 0; i < argc; ++i) {
-      const std::string a = argv[i];
-      const auto is = [&a](const auto& option) { return a == option.first; };
-      const auto is_with_value = [&a](const auto& option) { return a.rfind(option.first + "=", 0) == 0; };
-      if (std::any_of(replaced.begin(), replaced.end(), is)) {
-        ++i;  // and its value
-        continue;
-      }
-      if (std::any_of(replaced.begin(), replaced.end(), is_with_value)) continue;
-      args_.push_back(a);
-    }
-    for (const auto& [option, value] : replaced) {
-      args_.push_back(option);
-      args_.push_back(value);
-    }
-    if (std::find(args_.begin(), args_.end(), "--append") == args_.end()) args_.emplace_back("--append");
+  RestartCommand(int argc, char** argv, const RestartOptions& replaced)
+      : args_(RestartArguments(argc, argv, replaced)) {
     for (std::string& a : args_) argv_.push_back(a.data());
     argv_.push_back(nullptr);
     ::setenv(kRestartsVariable, std::to_string(RestartsInPlace() + 1).c_str(), 1);
@@ -290,6 +296,94 @@ void PrepareTerminate(int argc, char** argv, const char* program) {
   g_argv = argv;
   g_program = program;
   std::set_terminate(OnTerminate);
+}
+
+// A crash while the run goes on (docs/RUNNING.md, "A crash"): Fast DDS 2.9.1 can crash a
+// process of a starved host in its discovery (an assertion in PDP.cpp, a SIGSEGV in its
+// endpoint discovery), and a sensor must not be lost for that. While the application runs,
+// SIGSEGV, SIGBUS, SIGFPE, SIGILL and SIGABRT start the process again in place, as any
+// restart in place (at most kMaxRestartsInPlace times), with everything the signal handler
+// needs made beforehand: it only writes, marks descriptors close-on-exec and execs. What
+// it cannot do is delete its participant first, so its peers see the process end (its
+// ports' locks released) and it rejoins as a restarted agent; the step in flight is lost.
+// Made with the command of the moment it was armed (the target's --start-step then).
+struct CrashRestart {
+  std::vector<std::string> args;
+  std::vector<char*> argv;
+  std::vector<std::string> env;
+  std::vector<char*> envp;
+  std::string message;  // "<program>: error: crashed (signal "
+  std::string may_text;
+  std::string may_not_text;
+  bool may = false;
+  int max_fd = 1024;
+};
+CrashRestart* g_crash = nullptr;  // set once, never freed: a handler may read it at any time
+
+constexpr int kCrashSignals[] = {SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT};
+
+void WriteAll(const char* text, std::size_t size) {
+  while (size > 0) {
+    const ssize_t n = ::write(STDERR_FILENO, text, size);
+    if (n <= 0) return;
+    text += n;
+    size -= static_cast<std::size_t>(n);
+  }
+}
+
+extern "C" void OnCrash(int signal_number) {
+  const CrashRestart& c = *g_crash;
+  WriteAll(c.message.data(), c.message.size());
+  char digits[4];
+  int n = 0;
+  for (int v = signal_number; n < 3 && (n == 0 || v > 0); v /= 10) digits[n++] = static_cast<char>('0' + v % 10);
+  for (int i = n - 1; i >= 0; --i) WriteAll(&digits[i], 1);
+  const std::string& rest = c.may ? c.may_text : c.may_not_text;
+  WriteAll(rest.data(), rest.size());
+  if (c.may) {
+    for (int fd = 3; fd < c.max_fd; ++fd) ::fcntl(fd, F_SETFD, FD_CLOEXEC);
+    sigset_t none;
+    sigemptyset(&none);
+    sigprocmask(SIG_SETMASK, &none, nullptr);  // the new image must not inherit a blocked signal
+    ::execve("/proc/self/exe", c.argv.data(), c.envp.data());
+  }
+  ::signal(signal_number, SIG_DFL);  // SA_RESETHAND did so already; and if the exec failed
+  ::raise(signal_number);
+}
+
+void ArmCrashRestart(int argc, char** argv, const RestartOptions& replaced, const char* program) {
+  auto* c = new CrashRestart;
+  c->args = RestartArguments(argc, argv, replaced);
+  for (std::string& a : c->args) c->argv.push_back(a.data());
+  c->argv.push_back(nullptr);
+  const std::string restarts = std::string(kRestartsVariable) + "=";
+  const std::string ports = std::string(kShmPortsUsedVariable) + "=";
+  for (char** e = environ; *e != nullptr; ++e) {
+    const std::string entry = *e;
+    if (entry.rfind(restarts, 0) != 0 && entry.rfind(ports, 0) != 0) c->env.push_back(entry);
+  }
+  c->env.push_back(restarts + std::to_string(RestartsInPlace() + 1));
+  c->env.push_back(ports + ShmPortsUsedSoFar());
+  for (std::string& e : c->env) c->envp.push_back(e.data());
+  c->envp.push_back(nullptr);
+  c->may = RestartsInPlace() < kMaxRestartsInPlace;
+  c->message = std::string(program) + ": error: crashed (signal ";
+  c->may_text = ") while the run goes on; it starts again in place (docs/RUNNING.md, \"A crash\")\n";
+  c->may_not_text = ") while the run goes on, after " + std::to_string(RestartsInPlace()) +
+                    " restart(s) in place; ending (docs/RUNNING.md, \"A crash\")\n";
+  const long open_max = ::sysconf(_SC_OPEN_MAX);
+  c->max_fd = open_max > 0 && open_max < 65536 ? static_cast<int>(open_max) : 65536;
+  g_crash = c;
+  struct sigaction action {};
+  action.sa_handler = OnCrash;
+  sigemptyset(&action.sa_mask);
+  action.sa_flags = SA_RESETHAND;  // a crash inside the handler ends the process
+  for (int signal_number : kCrashSignals) sigaction(signal_number, &action, nullptr);
+}
+
+// The run is over (or the process leaves on its own): a crash from now on is not restarted.
+void DisarmCrashRestart() {
+  for (int signal_number : kCrashSignals) ::signal(signal_number, SIG_DFL);
 }
 
 }  // namespace
@@ -362,6 +456,12 @@ StepIndex FaultStep(const char* variable, const std::string& who) {
 StepIndex FaultDeafStep(const std::string& who) { return FaultStep("DEIF_FAULT_DEAF", who); }
 
 StepIndex FaultThrowStep(const std::string& who) { return FaultStep("DEIF_FAULT_THROW", who); }
+
+StepIndex FaultCrashStep(const std::string& who) { return FaultStep("DEIF_FAULT_CRASH", who); }
+
+void CrashInAThreadForTest() {
+  std::thread([] { ::raise(SIGSEGV); }).detach();
+}
 
 void ThrowInAThreadForTest() {
   std::thread([] { throw std::runtime_error(std::string(kLockTimeout) + " (DEIF_FAULT_THROW)"); }).detach();
@@ -461,7 +561,9 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
       log->info("signal {}: stopping", signal_number);
       raw->Stop();
     });
+    ArmCrashRestart(argc, argv, app->RestartOptionsOf(), spec.program);
     const int code = app->Run();
+    DisarmCrashRestart();
     signals.SetHandler(nullptr);
     const auto flush = [&log] {
       log->flush();

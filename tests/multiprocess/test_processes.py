@@ -392,6 +392,35 @@ def test_thread_ended_by_a_lock_timeout(work, domain, monkeypatch):
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def test_crash_in_a_thread(work, domain, monkeypatch):
+    """Fast DDS 2.9.1 can crash a process of a starved host in its discovery (an assertion
+    in PDP.cpp, a SIGSEGV in endpoint discovery). A crash while the run goes on must not
+    lose the sensor: agent 3, crashing with SIGSEGV in a thread of its own at step 50
+    (DEIF_FAULT_CRASH), says so, starts again in place, rejoins and is fused by everyone
+    again; its CSV never holds a step twice (docs/RUNNING.md, "A crash")."""
+    monkeypatch.setenv("DEIF_FAULT_CRASH", "50:3")
+    res = launch(work, domain, agents=4, steps=150,
+                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
+    assert res.ok, res.why_not_ok()
+    p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
+    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1, p
+    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
+        log = f.read()
+    assert "deif_agent: error: crashed (signal 11) while the run goes on; it starts again in place" in log, \
+        log[-2000:]
+    assert log.count(" up: run ") == 2, log[-2000:]  # one new process image, not a crash loop
+    steps = steps_of(res.out_dir, 3)
+    assert steps == sorted(set(steps)) and steps[-1] == 150 and steps[:50] == list(range(1, 51))
+    # The others saw the process end (its ports' locks), not a lease running out.
+    with open(os.path.join(res.out_dir, "logs", "target.log")) as f:
+        assert "agent 3 lost (its process ended" in f.read()
+    for j in range(1, 5):
+        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 100]
+        fused_all = sum(r["fused"] == "4" for r in late)
+        assert late and fused_all >= 0.8 * len(late), \
+            f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
+
+
 def test_restart_in_place_everyone(work, domain, monkeypatch):
     """Every process of a lock-step run restarts in place at about the same step (as when a
     starved host leaves them all deaf at once): the new target must not go back to step 1
