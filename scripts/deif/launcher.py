@@ -744,6 +744,7 @@ class Launcher:
                           "signal": -status if status is not None and status < 0 else None,
                           "expected": expected, "restarts": p.restarts,
                           "restarts_in_place": restarts_in_place(p.log_path),
+                          "crashes": crashes(p.log_path),
                           "started_unix_s": p.started_unix_s,
                           "log": os.path.relpath(p.log_path, self.out_dir)})
         metrics = self.evaluate()
@@ -801,6 +802,16 @@ def restarts_in_place(log_path):
     try:
         with open(log_path, "rb") as f:
             return f.read().count(b"starts again in place")
+    except OSError:
+        return 0
+
+
+def crashes(log_path):
+    """How often a process crashed while its run went on and started again in place (its log
+    says so; docs/RUNNING.md, "A crash"); counted in restarts_in_place too."""
+    try:
+        with open(log_path, "rb") as f:
+            return f.read().count(b": error: crashed (signal ")
     except OSError:
         return 0
 

@@ -22,7 +22,7 @@ sys.path.insert(0, os.path.join(ROOT, "scripts"))
 sys.path.insert(0, os.path.join(ROOT, "tests", "support"))
 from deif import artefacts  # noqa: E402  (the project's reader of run artefacts)
 from deif import launcher as deif_launcher  # noqa: E402  (its shared-memory clean-up)
-from process_fixtures import domain, work  # noqa: E402,F401
+from process_fixtures import domain, no_crash_unless_asked, work  # noqa: E402,F401
 PYTHON = "/usr/bin/python3"
 DEIF_RUN = os.path.join(ROOT, "scripts", "deif-run")
 DEFAULT = os.path.join(ROOT, "configs", "default.yaml")

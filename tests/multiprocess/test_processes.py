@@ -403,7 +403,7 @@ def test_crash_in_a_thread(work, domain, monkeypatch):
                  overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
     assert res.ok, res.why_not_ok()
     p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
-    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1, p
+    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1 and p["crashes"] == 1, p
     with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
         log = f.read()
     assert "deif_agent: error: crashed (signal 11) while the run goes on; it starts again in place" in log, \

@@ -7,7 +7,7 @@ import sys
 import pytest
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "support"))
-from process_fixtures import domain, work  # noqa: E402,F401
+from process_fixtures import domain, no_crash_unless_asked, work  # noqa: E402,F401
 
 
 @pytest.fixture(autouse=True)

@@ -2,7 +2,10 @@
 network, live, interop, cli): the DDS domain and the work folder ctest gives each test (so
 two tests never see each other; docs/TESTING.md), the project's scripts on sys.path, and
 the in-process simulation a run is compared with. A group's conftest.py imports the
-fixtures; its tests import `oracle`."""
+fixtures; its tests import `oracle`. `no_crash_unless_asked` (autouse where imported) fails
+a test in which a process of a run crashed and started again in place (docs/RUNNING.md, "A
+crash") while the test had not asked for it with DEIF_FAULT_CRASH: a restart in place keeps
+a run going, and must not hide a crash from a test."""
 import os
 import shutil
 import subprocess
@@ -27,6 +30,25 @@ def work(tmp_path):
     shutil.rmtree(path, ignore_errors=True)
     os.makedirs(path)
     return path
+
+
+@pytest.fixture(autouse=True)
+def no_crash_unless_asked(monkeypatch):
+    """Every run this test finishes through the launcher has no crash it did not ask for."""
+    from deif import launcher
+    crashed = []
+    finish = launcher.Launcher.finish
+
+    def checked_finish(self):
+        res = finish(self)
+        if "DEIF_FAULT_CRASH" not in os.environ:
+            crashed.extend(f"{p['name']} ({p['crashes']} crash(es), log {p['log']})"
+                           for p in res.summary.get("processes", []) if p.get("crashes"))
+        return res
+
+    monkeypatch.setattr(launcher.Launcher, "finish", checked_finish)
+    yield
+    assert not crashed, f"a process crashed and started again in place: {crashed}"
 
 
 def oracle(run_dir, work=None):
