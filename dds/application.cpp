@@ -268,7 +268,7 @@ const char* g_program = "";
 // std::terminate would abort a process that is not broken (docs/FASTDDS_NOTES.md, "An
 // exception that ends a thread"). Such a process starts again in place (RestartCommand, as
 // any restart in place, at most kMaxRestartsInPlace times); any other uncaught exception is
-// logged and aborts as before.
+// logged and aborts, which while the run goes on is a crash like any other (ArmCrashRestart).
 [[noreturn]] void OnTerminate() {
   std::string what = "not a std::exception";
   try {
