@@ -156,6 +156,7 @@ int TargetNode::Run() {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
     }
+    if (CrashForTest()) dds::CrashInAThreadForTest();
     if (dds::Node::ReceiveStuck() || DeafForTest()) {
       // Fast DDS 2.9.1 cannot recover the port (docs/FASTDDS_NOTES.md, "A receive loop stuck
       // on a dead writer's segment"); a new participant can. The new process resumes after
@@ -237,6 +238,13 @@ bool TargetNode::DiscoveryStoppedShort(double now_s) {
 bool TargetNode::DeafForTest() const {
   static const StepIndex at_step = dds::FaultDeafStep("target");
   return at_step > 0 && protocol_.current_step() >= at_step;
+}
+
+bool TargetNode::CrashForTest() {
+  static const StepIndex at_step = dds::FaultCrashStep("target");
+  if (crashed_for_test_ || at_step == 0 || protocol_.current_step() < at_step) return false;
+  crashed_for_test_ = true;
+  return true;
 }
 
 void TargetNode::Dispatch(const dds::Event& event, double now_s) {

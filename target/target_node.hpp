@@ -42,6 +42,7 @@ class TargetNode : public dds::Application {
   bool AnotherTargetInThisRun();
   void WriteCounters() const;
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
+  bool CrashForTest();       // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
   // While it waits for the agents: whether its range writer has stopped short of agents that
   // are present (their states arrive, no reader of theirs matched, unchanged for
   // dds::DiscoveryPatienceS), so that it starts again in place with a new participant
@@ -59,6 +60,7 @@ class TargetNode : public dds::Application {
   std::optional<TargetCsv> target_csv_;
   std::optional<RangesCsv> ranges_csv_;
   std::atomic<bool> stop_requested_{false};
+  bool crashed_for_test_ = false;  // CrashForTest
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
   bool watching_ports_ = true;     // dds::RestartForLostPorts
   std::optional<int> exit_code_;

@@ -421,6 +421,29 @@ def test_crash_in_a_thread(work, domain, monkeypatch):
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def test_crash_of_the_target(work, domain, monkeypatch):
+    """The target crashing (SIGSEGV in a thread of its own at step 50, DEIF_FAULT_CRASH)
+    starts again in place and resumes after the agents' newest step: a lock-step run goes
+    on to the end, every agent writes every step with all 4 fused, and target.csv never holds
+    a step twice (docs/RUNNING.md, "A crash")."""
+    monkeypatch.setenv("DEIF_FAULT_CRASH", "50:target")
+    res = launch(work, domain, agents=4, steps=150)
+    assert res.ok, res.why_not_ok()
+    p = {p["name"]: p for p in res.summary["processes"]}["target"]
+    assert p["exit_status"] == 0 and p["restarts_in_place"] == 1 and p["crashes"] == 1, p
+    with open(os.path.join(res.out_dir, "logs", "target.log")) as f:
+        log = f.read()
+    assert "deif_target: error: crashed (signal 11) while the run goes on; it starts again in place" in log
+    starts = [int(m) for m in re.findall(r"starting at step (\d+)", log)]
+    assert len(starts) == 2 and starts[1] > 50, starts
+    target_steps = [int(r["step"]) for r in artefacts.read_csv(os.path.join(res.out_dir, "target.csv"))]
+    assert target_steps == sorted(set(target_steps)) and target_steps[-1] == 150
+    for j in range(1, 5):
+        assert steps_of(res.out_dir, j) == list(range(1, 151)), j
+        short = [r["step"] for r in rows(res.out_dir, j) if r["fused"] != "4"]
+        assert not short, (j, short)
+
+
 def test_restart_in_place_everyone(work, domain, monkeypatch):
     """Every process of a lock-step run restarts in place at about the same step (as when a
     starved host leaves them all deaf at once): the new target must not go back to step 1
