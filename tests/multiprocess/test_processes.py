@@ -367,6 +367,19 @@ def test_restart_in_place(work, domain, monkeypatch):
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def assert_rejoined(res, agent, at_step):
+    """Agent `agent` of a 4-agent, 150-step run started again in place at `at_step`: it wrote
+    every step up to it, never a step twice, the last step; and in the last 50 steps every
+    agent fused all 4 in at least 80 % of its rows."""
+    steps = steps_of(res.out_dir, agent)
+    assert steps == sorted(set(steps)) and steps[-1] == 150 and steps[:at_step] == list(range(1, at_step + 1))
+    for j in range(1, 5):
+        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 100]
+        fused_all = sum(r["fused"] == "4" for r in late)
+        assert late and fused_all >= 0.8 * len(late), \
+            f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
+
+
 def test_thread_ended_by_a_lock_timeout(work, domain, monkeypatch):
     """A shared-memory receive thread of Fast DDS 2.9.1 locks its port once more after each
     message, outside any try: when another process holds that lock past Fast DDS's timeout
@@ -383,13 +396,7 @@ def test_thread_ended_by_a_lock_timeout(work, domain, monkeypatch):
     with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
         log = f.read()
     assert "an exception ended a thread (Interprocess mutex timeout when locking" in log, log[-2000:]
-    steps = steps_of(res.out_dir, 3)
-    assert steps == sorted(set(steps)) and steps[-1] == 150 and steps[:50] == list(range(1, 51))
-    for j in range(1, 5):
-        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 100]
-        fused_all = sum(r["fused"] == "4" for r in late)
-        assert late and fused_all >= 0.8 * len(late), \
-            f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
+    assert_rejoined(res, 3, at_step=50)
 
 
 def test_crash_in_a_thread(work, domain, monkeypatch):
@@ -409,16 +416,10 @@ def test_crash_in_a_thread(work, domain, monkeypatch):
     assert "deif_agent: error: crashed (signal 11) while the run goes on; it starts again in place" in log, \
         log[-2000:]
     assert log.count(" up: run ") == 2, log[-2000:]  # one new process image, not a crash loop
-    steps = steps_of(res.out_dir, 3)
-    assert steps == sorted(set(steps)) and steps[-1] == 150 and steps[:50] == list(range(1, 51))
     # The others saw the process end (its ports' locks), not a lease running out.
     with open(os.path.join(res.out_dir, "logs", "target.log")) as f:
         assert "agent 3 lost (its process ended" in f.read()
-    for j in range(1, 5):
-        late = [r for r in rows(res.out_dir, j) if int(r["step"]) > 100]
-        fused_all = sum(r["fused"] == "4" for r in late)
-        assert late and fused_all >= 0.8 * len(late), \
-            f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
+    assert_rejoined(res, 3, at_step=50)
 
 
 def test_crash_of_the_target(work, domain, monkeypatch):
