@@ -205,8 +205,7 @@ void CloseOnExec() {
 }
 
 // This program's command again, each option of `replaced` with its new value instead of the
-// old one, and --append (docs/RUNNING.md, "Restarting in place"); made before the
-// participant is deleted, so that a hang or crash in the deletion can still exec it.
+// old one, and --append (docs/RUNNING.md, "Restarting in place").
 std::vector<std::string> RestartArguments(int argc, char** argv, const RestartOptions& replaced) {
   std::vector<std::string> args;
   for (int i = 0; i < argc; ++i) {
@@ -228,6 +227,8 @@ std::vector<std::string> RestartArguments(int argc, char** argv, const RestartOp
   return args;
 }
 
+// RestartArguments and the environment of a restart in place, made before the participant
+// is deleted, so that a hang or crash in the deletion can still exec it.
 class RestartCommand {
  public:
   RestartCommand(int argc, char** argv, const RestartOptions& replaced)
@@ -562,6 +563,9 @@ int RunMain(int argc, char** argv, const ProcessSpec& spec) {
       raw->Stop();
     });
     ArmCrashRestart(argc, argv, app->RestartOptionsOf(), spec.program);
+    struct Disarm {
+      ~Disarm() { DisarmCrashRestart(); }  // also when Run throws: before the app is deleted
+    } disarm;
     const int code = app->Run();
     DisarmCrashRestart();
     signals.SetHandler(nullptr);
