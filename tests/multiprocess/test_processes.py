@@ -966,8 +966,11 @@ def test_tree_silent_relay_left_at_once(work, domain):
 def test_tree_frozen_relay(work, domain):
     """N=7 over the tree in real time (10 Hz): relay 2 frozen (SIGSTOP) for 3 s from step 40.
     Its subtree and the rest go on without it; once it resumes, every contribution it and
-    its subtree missed is fused late: the agents agree before the freeze and from 30 steps
-    after the resume on, bit for bit."""
+    its subtree missed is fused late: the agents agree before the freeze and from 40 steps
+    after the resume on, bit for bit. (Usually 30 are enough; a stop that lands while agent 2
+    holds the lock of a peer's shared-memory port stalls the others' publishing until Fast
+    DDS's lock timeout, docs/FASTDDS_NOTES.md, "An exception that ends a thread": seen once
+    in CI, the peers' loops stood still for 3-6 s and the catch-up ended at step 101.)"""
     faults = [launcher.Fault(40, "stop", 2), launcher.Fault(70, "cont", 2)]
     res = launch(work, domain, agents=7, steps=150, faults=faults,
                  overrides=TREE + ["scenario.mode=realtime", "scenario.period_s=0.1"])
@@ -982,8 +985,8 @@ def test_tree_frozen_relay(work, domain):
             r = last[j][k]
             assert r["x_est"] == ref["x_est"] and r["p_xx"] == ref["p_xx"], (j, k)
             assert r["fused"] == "7"
-    # Disagreement only from the freeze to 30 steps after the resume (the frozen relay's
+    # Disagreement only from the freeze to 40 steps after the resume (the frozen relay's
     # own rows of the freeze, then its catch-up); exact agreement before and after.
     differing = [k for k in map(str, range(1, 151))
                  if len({last[j][k]["x_est"] for j in range(1, 8) if k in last[j]}) > 1]
-    assert all(40 <= int(k) <= 100 for k in differing), differing
+    assert all(40 <= int(k) <= 110 for k in differing), differing
