@@ -24,31 +24,13 @@ constexpr double kEndedCheckSuspectS = 0.02;
 // Writers kept per parent: its relay writer, and that of each process that restarted as it.
 constexpr std::size_t kMaxParentWriters = 16;
 
-// The last step of the rows a restarted process appends to (0: none, or unreadable).
-StepIndex LastStepWritten(const dds::ProcessContext& context, AgentId id) {
-  if (!context.options.append || context.options.out_dir.empty()) return 0;
-  const std::filesystem::path csv = std::filesystem::path(context.options.out_dir) / AgentCsvName(id);
-  std::error_code ec;
-  if (!std::filesystem::exists(csv, ec)) return 0;
-  try {
-    const std::vector<AgentRow> rows = ReadAgentCsv(csv.string());
-    StepIndex last = 0;
-    for (const AgentRow& r : rows) last = std::max(last, r.step);
-    return last;
-  } catch (const std::exception& e) {
-    context.log->warn("--append: cannot read the steps of {} ({}); joining as a new agent", csv.string(),
-                      e.what());
-    return 0;
-  }
-}
-
 protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& context, AgentId id,
                                                  std::uint64_t token, const dds::Timings& timings) {
   protocol::AgentProtocol::Options options;
   options.peer_grace_s = timings.peer_grace_s;
   options.run = protocol::RunTokenOf(context.run_name);
   options.instance_token = token;
-  options.resume_after = LastStepWritten(context, id);
+  options.resume_after = dds::LastStepAppendedTo(context, AgentCsvName(id), &ReadAgentCsv, "joining as a new agent");
   return options;
 }
 

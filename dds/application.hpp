@@ -3,8 +3,10 @@
 // wired to Stop(), and errors mapped to one line and an exit code (docs/RUNNING.md).
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
+#include <exception>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -67,6 +69,25 @@ struct ProcessContext {
   std::string run_name;  // the effective run name
   std::shared_ptr<spdlog::logger> log;
 };
+
+// The last step of the CSV `file_name` in --out that a process started with --append appends
+// to, read with `read` (0: not --append, no --out, no such file or no rows). A process never
+// writes a row at or before it (docs/RUNNING.md). If the file cannot be read, it logs so with
+// what it does instead (`otherwise`) and returns 0.
+template <typename Row>
+StepIndex LastStepAppendedTo(const ProcessContext& context, const std::string& file_name,
+                             std::vector<Row> (*read)(const std::string&), const char* otherwise) {
+  if (!context.options.append || context.options.out_dir.empty()) return 0;
+  const std::string path = context.options.out_dir + "/" + file_name;
+  try {
+    StepIndex last = 0;
+    for (const Row& row : read(path)) last = std::max(last, row.step);  // no file: no rows
+    return last;
+  } catch (const std::exception& e) {
+    context.log->warn("--append: cannot read the steps of {} ({}); {}", path, e.what(), otherwise);
+    return 0;
+  }
+}
 
 struct ProcessSpec {
   const char* program;      // "deif_agent"

@@ -23,23 +23,6 @@ constexpr double kMaxWaitS = 0.5;
 // ended"); the loop wakes for it too, once the run has started.
 constexpr double kEndedCheckS = 0.1;
 
-// The last step of the target.csv a restarted target appends to (0: none, or unreadable).
-StepIndex LastStepWritten(const dds::ProcessContext& context) {
-  if (!context.options.append || context.options.out_dir.empty()) return 0;
-  const std::filesystem::path csv = std::filesystem::path(context.options.out_dir) / kTargetCsvSchema.file_name;
-  std::error_code ec;
-  if (!std::filesystem::exists(csv, ec)) return 0;
-  try {
-    StepIndex last = 0;
-    for (const TargetRow& r : ReadTargetCsv(csv.string())) last = std::max(last, r.step);
-    return last;
-  } catch (const std::exception& e) {
-    context.log->warn("--append: cannot read the steps of {} ({}); resuming after the agents' newest step",
-                      csv.string(), e.what());
-    return 0;
-  }
-}
-
 protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
                                                   const TargetOptions& options) {
   protocol::TargetProtocol::Options out;
@@ -49,7 +32,9 @@ protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& con
   // writes a step its target.csv already holds: the step after its last row is a floor, as
   // --start-step is (the step in flight is lost, as with any restart; at the last step, that
   // step again, as in RestartOptionsOf).
-  if (const StepIndex last = LastStepWritten(context); last > 0) {
+  if (const StepIndex last = dds::LastStepAppendedTo(context, kTargetCsvSchema.file_name, &ReadTargetCsv,
+                                                         "resuming after the agents' newest step");
+      last > 0) {
     const StepIndex floor = std::min(last + 1, context.config.scenario.steps);
     out.start_step = std::max(out.start_step.value_or(0), floor);
   }
