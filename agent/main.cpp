@@ -6,6 +6,8 @@
 #include <memory>
 #include <string>
 
+#include <CLI/CLI.hpp>
+
 #include "agent/agent_node.hpp"
 #include "dds/application.hpp"
 

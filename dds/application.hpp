@@ -14,11 +14,16 @@
 #include <utility>
 #include <vector>
 
-#include <CLI/CLI.hpp>
 #include <spdlog/logger.h>
 
 #include "common/config/config.hpp"
 #include "common/protocol/agent_protocol.hpp"
+
+// CLI11 is included only where options are declared or parsed (the mains and
+// application.cpp): it is the costliest header of the build.
+namespace CLI {
+class App;
+}  // namespace CLI
 
 namespace deif::dds {
 

@@ -4,6 +4,7 @@
 #include <type_traits>
 #include <variant>
 
+#include <nlohmann/json.hpp>
 #include <spdlog/fmt/fmt.h>
 
 namespace deif::dds {

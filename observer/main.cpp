@@ -27,6 +27,8 @@
 #include <optional>
 #include <string>
 
+#include <CLI/CLI.hpp>
+
 #include "common/artefacts/artefacts.hpp"
 #include "dds/application.hpp"
 #include "dds/node.hpp"

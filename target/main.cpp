@@ -7,6 +7,8 @@
 #include <optional>
 #include <string>
 
+#include <CLI/CLI.hpp>
+
 #include "dds/application.hpp"
 #include "target/target_node.hpp"
 
