@@ -461,8 +461,13 @@ StepIndex FaultThrowStep(const std::string& who) { return FaultStep("DEIF_FAULT_
 
 StepIndex FaultCrashStep(const std::string& who) { return FaultStep("DEIF_FAULT_CRASH", who); }
 
-void CrashInAThreadForTest() {
-  std::thread([] { ::raise(SIGSEGV); }).detach();
+void CrashInAThreadForTest(bool wait) {
+  std::thread crash([] { ::raise(SIGSEGV); });
+  if (wait) {
+    crash.join();  // never returns: the process starts again in place, or ends
+  } else {
+    crash.detach();
+  }
 }
 
 void ThrowInAThreadForTest() {

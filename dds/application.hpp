@@ -131,10 +131,12 @@ StepIndex FaultDeafStep(const std::string& who);
 StepIndex FaultThrowStep(const std::string& who);
 void ThrowInAThreadForTest();
 // DEIF_FAULT_CRASH=STEP:WHO[,...], the same way: the step from which the first process of
-// `who` crashes (SIGSEGV in a thread of its own, CrashInAThreadForTest), so that tests can
+// `who` crashes (SIGSEGV in a thread of its own, CrashInAThreadForTest; the target in the
+// middle of sending that step's ranges, after the first), so that tests can
 // see it start again in place (docs/RUNNING.md, "A crash"); 0 when not asked.
 StepIndex FaultCrashStep(const std::string& who);
-void CrashInAThreadForTest();
+// With `wait`, the calling thread waits for the crash: nothing it would do next happens.
+void CrashInAThreadForTest(bool wait = false);
 // How Fast DDS's (boost's) exception of a timed-out interprocess lock begins.
 constexpr const char* kLockTimeout = "Interprocess mutex timeout when locking";
 // For a process that must start again with a new participant (`why`): logs why, and whether

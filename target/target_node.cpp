@@ -28,14 +28,15 @@ protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& con
   protocol::TargetProtocol::Options out;
   out.run = protocol::RunTokenOf(context.run_name);
   out.start_step = options.start_step;
-  // A target that starts again (in place after a crash, or by hand with --append) never
-  // writes a step its target.csv already holds: the step after its last row is a floor, as
-  // --start-step is (the step in flight is lost, as with any restart; at the last step, that
-  // step again, as in RestartOptionsOf).
+  // A target that starts again (in place after a crash, or by hand with --append) never goes
+  // back before the last step its target.csv holds: that step is a floor, as --start-step is.
+  // It is the step in flight when the previous process ended, whose ranges may have reached
+  // only some agents: the new process does it again if the agents have not finished it,
+  // without writing its rows twice (TargetNode::Run).
   if (const StepIndex last = dds::LastStepAppendedTo(context, kTargetCsvSchema.file_name, &ReadTargetCsv,
                                                          "resuming after the agents' newest step");
       last > 0) {
-    const StepIndex floor = std::min(last + 1, context.config.scenario.steps);
+    const StepIndex floor = std::min(last, context.config.scenario.steps);
     out.start_step = std::max(out.start_step.value_or(0), floor);
   }
   out.hold_for_faults = options.hold_for_faults;
@@ -134,6 +135,7 @@ int TargetNode::Run() {
     const CsvMode mode = options_.start_step || context_.options.append ? CsvMode::kAppend
                                                                        : CsvMode::kTruncate;
     const std::filesystem::path dir(context_.options.out_dir);
+    if (mode == CsvMode::kAppend) FindRowsOnFile(dir);
     target_csv_.emplace((dir / kTargetCsvSchema.file_name).string(), mode);
     ranges_csv_.emplace((dir / kRangesCsvSchema.file_name).string(), mode);
   } else {
@@ -166,7 +168,6 @@ int TargetNode::Run() {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
     }
-    if (CrashForTest()) dds::CrashInAThreadForTest();
     if (dds::Node::ReceiveStuck() || DeafForTest()) {
       // Fast DDS 2.9.1 cannot recover the port (docs/FASTDDS_NOTES.md, "A receive loop stuck
       // on a dead writer's segment"); a new participant can. The new process resumes after
@@ -198,14 +199,34 @@ int TargetNode::Run() {
   return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);
 }
 
+void TargetNode::FindRowsOnFile(const std::filesystem::path& dir) {
+  // Rows are deterministic (the truth and the noise are functions of the seed and the step),
+  // so a row on file is the row this process would write.
+  const std::string truth_path = (dir / kTargetCsvSchema.file_name).string();
+  const std::string ranges_path = (dir / kRangesCsvSchema.file_name).string();
+  try {
+    for (const TargetRow& row : ReadTargetCsv(truth_path)) {
+      truth_rows_through_ = std::max(truth_rows_through_, row.step);
+    }
+    for (const RangeRow& row : ReadRangesCsv(ranges_path)) {
+      if (row.step > range_rows_through_) {
+        range_rows_through_ = row.step;
+        range_rows_at_last_.clear();
+      }
+      if (row.step == range_rows_through_) range_rows_at_last_.insert(row.agent_id);
+    }
+  } catch (const std::exception& e) {
+    context_.log->warn("cannot read the rows of {} and {} ({}); a step done again may be written twice",
+                       truth_path, ranges_path, e.what());
+  }
+}
+
 dds::RestartOptions TargetNode::RestartOptionsOf() const {
-  // The step after the one it was at: that step's ranges and truth row are written (the
-  // step in flight may be lost, as with any restart). While it waits for the agents (step
-  // 0), the step it was given. At the last step, that step again: if the agents wrote it,
-  // the new process finds nothing left to do, else it writes the last truth row twice.
+  // The step it was at: the new process does it again unless the agents finished it (its
+  // ranges may not have reached them all), without writing its rows twice (FindRowsOnFile).
+  // While it waits for the agents (step 0), the step it was given.
   const StepIndex current = protocol_.current_step();
-  StepIndex floor = std::max(options_.start_step.value_or(0), current > 0 ? current + 1 : 0);
-  floor = std::min(floor, config_.scenario.steps);  // --start-step goes up to the last step
+  const StepIndex floor = std::max(options_.start_step.value_or(0), current);
   if (floor < 1) return {};
   return {{"--start-step", std::to_string(floor)}};
 }
@@ -250,9 +271,9 @@ bool TargetNode::DeafForTest() const {
   return at_step > 0 && protocol_.current_step() >= at_step;
 }
 
-bool TargetNode::CrashForTest() {
+bool TargetNode::CrashForTest(StepIndex step) {
   static const StepIndex at_step = dds::FaultCrashStep("target");
-  if (crashed_for_test_ || at_step == 0 || protocol_.current_step() < at_step) return false;
+  if (crashed_for_test_ || at_step == 0 || step < at_step) return false;
   crashed_for_test_ = true;
   return true;
 }
@@ -280,12 +301,16 @@ void TargetNode::Execute(std::vector<protocol::TargetAction> actions) {
           namespace act = protocol::target_action;
           if constexpr (std::is_same_v<A, act::PublishRange>) {
             node_.Write(a.msg);
+            // DEIF_FAULT_CRASH: at the worst moment, a step's ranges sent to some agents only.
+            if (CrashForTest(a.msg.step)) dds::CrashInAThreadForTest(/*wait=*/true);
           } else if constexpr (std::is_same_v<A, act::PublishTruth>) {
             node_.Write(a.msg);
           } else if constexpr (std::is_same_v<A, act::WriteTruthRow>) {
-            if (target_csv_) target_csv_->Write(a.row);
+            if (target_csv_ && a.row.step > truth_rows_through_) target_csv_->Write(a.row);
           } else if constexpr (std::is_same_v<A, act::WriteRangeRow>) {
-            if (ranges_csv_) ranges_csv_->Write(a.row);
+            const bool on_file = a.row.step < range_rows_through_ ||
+                                 (a.row.step == range_rows_through_ && range_rows_at_last_.count(a.row.agent_id) > 0);
+            if (ranges_csv_ && !on_file) ranges_csv_->Write(a.row);
           } else if constexpr (std::is_same_v<A, act::Hold>) {
             std::printf("hold %lld %s\n", static_cast<long long>(a.step), a.faults.c_str());
             std::fflush(stdout);

@@ -7,8 +7,10 @@
 
 #include <atomic>
 #include <deque>
+#include <filesystem>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <thread>
 
 #include "common/artefacts/artefacts.hpp"
@@ -42,13 +44,14 @@ class TargetNode : public dds::Application {
   bool AnotherTargetInThisRun();
   void WriteCounters() const;
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
-  bool CrashForTest();       // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
+  bool CrashForTest(StepIndex step);  // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
   // While it waits for the agents: whether its range writer has stopped short of agents that
   // are present (their states arrive, no reader of theirs matched, unchanged for
   // dds::DiscoveryPatienceS), so that it starts again in place with a new participant
   // (docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"). Not with security.
   bool DiscoveryStoppedShort(double now_s);
   void Execute(std::vector<protocol::TargetAction> actions);
+  void FindRowsOnFile(const std::filesystem::path& dir);  // truth_rows_through_, ...
   void ReadControl();  // the stdin thread: "go <step>" lines
   void Dispatch(const dds::Event& event, double now_s);
 
@@ -59,6 +62,12 @@ class TargetNode : public dds::Application {
   protocol::TargetProtocol protocol_;
   std::optional<TargetCsv> target_csv_;
   std::optional<RangesCsv> ranges_csv_;
+  // The rows a target started again (--start-step or --append) finds in its files, which it
+  // never writes again: target.csv's steps up to truth_rows_through_; ranges.csv's steps
+  // before range_rows_through_, and at that step the agents in range_rows_at_last_.
+  StepIndex truth_rows_through_ = 0;
+  StepIndex range_rows_through_ = 0;
+  std::set<AgentId> range_rows_at_last_;
   std::atomic<bool> stop_requested_{false};
   bool crashed_for_test_ = false;  // CrashForTest
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
