@@ -200,8 +200,9 @@ int TargetNode::Run() {
 }
 
 void TargetNode::FindRowsOnFile(const std::filesystem::path& dir) {
-  // Rows are deterministic (the truth and the noise are functions of the seed and the step),
-  // so a row on file is the row this process would write.
+  // A step done again has the rows on file (in lock-step the same rows: the truth and the
+  // noise are functions of the seed, the step and the position the agent published); only
+  // the agents the previous process did not measure get a row.
   const std::string truth_path = (dir / kTargetCsvSchema.file_name).string();
   const std::string ranges_path = (dir / kRangesCsvSchema.file_name).string();
   try {
