@@ -6,6 +6,7 @@ fixtures; its tests import `oracle`. `no_crash_unless_asked` (autouse where impo
 a test in which a process of a run crashed and started again in place (docs/RUNNING.md, "A
 crash") while the test had not asked for it with DEIF_FAULT_CRASH: a restart in place keeps
 a run going, and must not hide a crash from a test."""
+import json
 import os
 import shutil
 import subprocess
@@ -53,9 +54,20 @@ def no_crash_unless_asked(monkeypatch):
 
 def oracle(run_dir, work=None):
     """The in-process simulation (all to all, no network) of the run's own config (faults
-    included), written beside the run; returns its folder."""
-    from deif import paths
+    included), written beside the run; returns its folder. A run stopped before its last
+    step (a test that runs "steps: 100000" until it has seen enough) is simulated only as
+    far as its target went: a step's rows do not depend on the steps after it."""
+    from deif import artefacts, paths
     out = run_dir + "-oracle"
-    subprocess.run([paths.executable("deif_sim"), "--config", os.path.join(run_dir, "config.yaml"),
-                    "--out", out, "--quiet"], check=True)
+    argv = [paths.executable("deif_sim"), "--config", os.path.join(run_dir, "config.yaml"),
+            "--out", out, "--quiet"]
+    last = artefacts.last_row(os.path.join(run_dir, "target.csv"))
+    try:
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            steps = json.load(f)["config"]["scenario"]["steps"]
+    except (OSError, KeyError, ValueError):
+        steps = None
+    if last and steps and int(last["step"]) < steps:
+        argv += ["--steps", last["step"]]
+    subprocess.run(argv, check=True)
     return out
