@@ -294,10 +294,27 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
 void AgentNode::ReportMatches(double now_s) {
   // Both ways: this agent hears every peer, and every peer hears this agent; and it hears
   // the target.
-  protocol_.OnPeersMatched(std::min(node_.MatchedWriters(dds::Topic::kContribution),
-                                    node_.MatchedReaders(dds::Topic::kContribution)),
-                           node_.MatchedWriters(dds::Topic::kRange), now_s);
+  int matched = std::min(node_.MatchedWriters(dds::Topic::kContribution),
+                         node_.MatchedReaders(dds::Topic::kContribution));
+  // Over the tree a step's contributions travel only along its links: until this agent's
+  // links to its parent and children are matched both ways, it does not count as hearing
+  // everyone (docs/PROTOCOL.md, "Start").
+  if (tree_ && !TreeLinksMatched()) matched = std::min(matched, config_.agents.count - 1);
+  protocol_.OnPeersMatched(matched, node_.MatchedWriters(dds::Topic::kRange), now_s);
   protocol_.OnTargetParticipant(node_.TargetUp(), now_s);
+}
+
+bool AgentNode::TreeLinksMatched() const {
+  // The writer up and the reader down are in the parent's partitions, the reader up and
+  // the writer down in this agent's own (PlaceRelays): each matches exactly the other end
+  // of its links. The root's are in partitions of no one.
+  const protocol::TreePlace& place = tree_->place();
+  const int parent = place.parent ? 1 : 0;
+  const int children = static_cast<int>(place.children.size());
+  return node_.MatchedReaders(dds::Topic::kRelayUp) >= parent &&
+         node_.MatchedWriters(dds::Topic::kRelayDown) >= parent &&
+         node_.MatchedWriters(dds::Topic::kRelayUp) >= children &&
+         node_.MatchedReaders(dds::Topic::kRelayDown) >= children;
 }
 
 void AgentNode::WriteCounters() const {

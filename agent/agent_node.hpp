@@ -65,6 +65,9 @@ class AgentNode : public dds::Application {
   bool DiscoveryStoppedShort(double now_s);
   // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   void ReportMatches(double now_s);
+  // Whether the relay endpoints of this agent's place in the tree matched their other ends:
+  // its parent's (one each way) and its children's (docs/SCALING.md).
+  bool TreeLinksMatched() const;
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason, and
   // how long samples took to reach it.
   void WriteCounters() const;

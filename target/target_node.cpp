@@ -23,20 +23,45 @@ constexpr double kMaxWaitS = 0.5;
 // ended"); the loop wakes for it too, once the run has started.
 constexpr double kEndedCheckS = 0.1;
 
+// A step done again has the rows on file (in lock-step the same rows: the truth and the
+// noise are functions of the seed, the step and the position the agent published); only the
+// agents the previous process did not measure get a row (TargetNode::Execute).
+RowsOnFile ReadRowsOnFile(const dds::ProcessContext& context, const TargetOptions& options) {
+  RowsOnFile out;
+  if (context.options.out_dir.empty() || !(options.start_step || context.options.append)) return out;
+  const std::filesystem::path dir(context.options.out_dir);
+  const std::string truth_path = (dir / kTargetCsvSchema.file_name).string();
+  const std::string ranges_path = (dir / kRangesCsvSchema.file_name).string();
+  try {
+    for (const TargetRow& row : ReadTargetCsv(truth_path)) out.truth_through = std::max(out.truth_through, row.step);
+    for (const RangeRow& row : ReadRangesCsv(ranges_path)) {
+      if (row.step > out.ranges_through) {
+        out.ranges_through = row.step;
+        out.ranges_at_last.clear();
+      }
+      if (row.step == out.ranges_through) out.ranges_at_last.insert(row.agent_id);
+    }
+  } catch (const std::exception& e) {
+    context.log->warn("cannot read the rows of {} and {} ({}); resuming after the agents' newest step, "
+                      "and a step done again may be written twice",
+                      truth_path, ranges_path, e.what());
+    return {};
+  }
+  return out;
+}
+
 protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& context,
-                                                  const TargetOptions& options) {
+                                                  const TargetOptions& options, const RowsOnFile& on_file) {
   protocol::TargetProtocol::Options out;
   out.run = protocol::RunTokenOf(context.run_name);
   out.start_step = options.start_step;
-  // A target that starts again (in place after a crash, or by hand with --append) never goes
-  // back before the last step its target.csv holds: that step is a floor, as --start-step is.
-  // It is the step in flight when the previous process ended, whose ranges may have reached
-  // only some agents: the new process does it again if the agents have not finished it,
-  // without writing its rows twice (TargetNode::Run).
-  if (const StepIndex last = dds::LastStepAppendedTo(context, kTargetCsvSchema.file_name, &ReadTargetCsv,
-                                                         "resuming after the agents' newest step");
-      last > 0) {
-    const StepIndex floor = std::min(last, context.config.scenario.steps);
+  // A target that starts again with --append (in place after a crash, or by hand) never goes
+  // back before the last step its target.csv holds: that step is a floor, as --start-step
+  // is. It is the step in flight when the previous process ended, whose ranges may have
+  // reached only some agents: the new process does it again if the agents have not finished
+  // it, without writing its rows twice (TargetNode::Execute).
+  if (context.options.append && on_file.truth_through > 0) {
+    const StepIndex floor = std::min(on_file.truth_through, context.config.scenario.steps);
     out.start_step = std::max(out.start_step.value_or(0), floor);
   }
   out.hold_for_faults = options.hold_for_faults;
@@ -49,8 +74,9 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
     : context_(context),
       config_(context.config),
       options_(options),
+      on_file_(ReadRowsOnFile(context, options)),
       node_(context.config, "target", context.run_name),
-      protocol_(context.config, ProtocolOptions(context, options)),
+      protocol_(context.config, ProtocolOptions(context, options, on_file_)),
       discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
   node_.AddWriter(dds::Topic::kTruth);
   node_.AddReader({dds::Topic::kAgentState, {}});
@@ -135,7 +161,6 @@ int TargetNode::Run() {
     const CsvMode mode = options_.start_step || context_.options.append ? CsvMode::kAppend
                                                                        : CsvMode::kTruncate;
     const std::filesystem::path dir(context_.options.out_dir);
-    if (mode == CsvMode::kAppend) FindRowsOnFile(dir);
     target_csv_.emplace((dir / kTargetCsvSchema.file_name).string(), mode);
     ranges_csv_.emplace((dir / kRangesCsvSchema.file_name).string(), mode);
   } else {
@@ -199,32 +224,9 @@ int TargetNode::Run() {
   return stop_requested_ ? protocol::kExitOk : exit_code_.value_or(protocol::kExitOk);
 }
 
-void TargetNode::FindRowsOnFile(const std::filesystem::path& dir) {
-  // A step done again has the rows on file (in lock-step the same rows: the truth and the
-  // noise are functions of the seed, the step and the position the agent published); only
-  // the agents the previous process did not measure get a row.
-  const std::string truth_path = (dir / kTargetCsvSchema.file_name).string();
-  const std::string ranges_path = (dir / kRangesCsvSchema.file_name).string();
-  try {
-    for (const TargetRow& row : ReadTargetCsv(truth_path)) {
-      truth_rows_through_ = std::max(truth_rows_through_, row.step);
-    }
-    for (const RangeRow& row : ReadRangesCsv(ranges_path)) {
-      if (row.step > range_rows_through_) {
-        range_rows_through_ = row.step;
-        range_rows_at_last_.clear();
-      }
-      if (row.step == range_rows_through_) range_rows_at_last_.insert(row.agent_id);
-    }
-  } catch (const std::exception& e) {
-    context_.log->warn("cannot read the rows of {} and {} ({}); a step done again may be written twice",
-                       truth_path, ranges_path, e.what());
-  }
-}
-
 dds::RestartOptions TargetNode::RestartOptionsOf() const {
   // The step it was at: the new process does it again unless the agents finished it (its
-  // ranges may not have reached them all), without writing its rows twice (FindRowsOnFile).
+  // ranges may not have reached them all), without writing its rows twice (ReadRowsOnFile).
   // While it waits for the agents (step 0), the step it was given.
   const StepIndex current = protocol_.current_step();
   const StepIndex floor = std::max(options_.start_step.value_or(0), current);
@@ -307,10 +309,10 @@ void TargetNode::Execute(std::vector<protocol::TargetAction> actions) {
           } else if constexpr (std::is_same_v<A, act::PublishTruth>) {
             node_.Write(a.msg);
           } else if constexpr (std::is_same_v<A, act::WriteTruthRow>) {
-            if (target_csv_ && a.row.step > truth_rows_through_) target_csv_->Write(a.row);
+            if (target_csv_ && a.row.step > on_file_.truth_through) target_csv_->Write(a.row);
           } else if constexpr (std::is_same_v<A, act::WriteRangeRow>) {
-            const bool on_file = a.row.step < range_rows_through_ ||
-                                 (a.row.step == range_rows_through_ && range_rows_at_last_.count(a.row.agent_id) > 0);
+            const bool on_file = a.row.step < on_file_.ranges_through ||
+                                 (a.row.step == on_file_.ranges_through && on_file_.ranges_at_last.count(a.row.agent_id) > 0);
             if (ranges_csv_ && !on_file) ranges_csv_->Write(a.row);
           } else if constexpr (std::is_same_v<A, act::Hold>) {
             std::printf("hold %lld %s\n", static_cast<long long>(a.step), a.faults.c_str());

@@ -27,6 +27,15 @@ struct TargetOptions {
   bool hold_for_faults = false;
 };
 
+// The rows a target started again (--start-step or --append) finds in its files, which it
+// never writes again: target.csv's steps up to truth_through; ranges.csv's steps before
+// ranges_through, and at that step the agents in ranges_at_last.
+struct RowsOnFile {
+  StepIndex truth_through = 0;
+  StepIndex ranges_through = 0;
+  std::set<AgentId> ranges_at_last;
+};
+
 class TargetNode : public dds::Application {
  public:
   TargetNode(dds::ProcessContext& context, TargetOptions options);
@@ -51,23 +60,17 @@ class TargetNode : public dds::Application {
   // (docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"). Not with security.
   bool DiscoveryStoppedShort(double now_s);
   void Execute(std::vector<protocol::TargetAction> actions);
-  void FindRowsOnFile(const std::filesystem::path& dir);  // truth_rows_through_, ...
   void ReadControl();  // the stdin thread: "go <step>" lines
   void Dispatch(const dds::Event& event, double now_s);
 
   dds::ProcessContext& context_;
   const Config& config_;
   const TargetOptions options_;
+  const RowsOnFile on_file_;  // read once, before protocol_ (its floor)
   dds::Node node_;
   protocol::TargetProtocol protocol_;
   std::optional<TargetCsv> target_csv_;
   std::optional<RangesCsv> ranges_csv_;
-  // The rows a target started again (--start-step or --append) finds in its files, which it
-  // never writes again: target.csv's steps up to truth_rows_through_; ranges.csv's steps
-  // before range_rows_through_, and at that step the agents in range_rows_at_last_.
-  StepIndex truth_rows_through_ = 0;
-  StepIndex range_rows_through_ = 0;
-  std::set<AgentId> range_rows_at_last_;
   std::atomic<bool> stop_requested_{false};
   bool crashed_for_test_ = false;  // CrashForTest
   bool restart_in_place_ = false;  // this process can no longer hear (Node::ReceiveStuck)
