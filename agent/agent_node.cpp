@@ -298,8 +298,9 @@ void AgentNode::ReportMatches(double now_s) {
                          node_.MatchedReaders(dds::Topic::kContribution));
   // Over the tree a step's contributions travel only along its links: until this agent's
   // links to its parent and children are matched both ways, it does not count as hearing
-  // everyone (docs/PROTOCOL.md, "Start").
-  if (tree_ && !TreeLinksMatched()) matched = std::min(matched, config_.agents.count - 1);
+  // everyone (docs/PROTOCOL.md, "Start"). Looked at only when it would count (each look
+  // takes an endpoint's lock, and this runs at every pass of the loop).
+  if (tree_ && matched >= config_.agents.count && !TreeLinksMatched()) matched = config_.agents.count - 1;
   protocol_.OnPeersMatched(matched, node_.MatchedWriters(dds::Topic::kRange), now_s);
   protocol_.OnTargetParticipant(node_.TargetUp(), now_s);
 }
