@@ -1412,9 +1412,11 @@ std::vector<protocol::SenderKey> Node::EndedAgents(double every_s,
     d.ended_watch.Watch(d.participant_listener.AgentShmPorts({prefix[2], prefix[3]}, d.ended_watch_agents));
     return d.ended_watch.Check();
   }
+  // Due whether or not anyone is left out: working out who is costs a pass over the members
+  // (not at every pass of the agent's loop).
+  d.next_suspects_check = after(suspects_every_s);
   const std::set<AgentId> ids = suspects();
   if (ids.empty()) return {};
-  d.next_suspects_check = after(suspects_every_s);
   std::set<protocol::SenderKey> only;
   for (const auto& [key, id] : d.ended_watch_agents) {
     if (ids.count(id) > 0) only.insert(key);

@@ -83,15 +83,25 @@ std::vector<int> ShmPortWatch::ListenedPorts(const std::string& dir) {
   return {ports.begin(), ports.end()};
 }
 
-std::vector<int> ShmPortWatch::Replaced() const {
+std::vector<int> ShmPortWatch::Replaced() {
   std::vector<int> replaced;
-  if (ports_.empty()) return replaced;
-  const std::string maps = ReadAll("/proc/self/maps");
+  std::optional<std::string> maps;  // read only when a port's file is not the one seen mapped last
   for (int port : ports_) {
     const std::string path = PortPath(dir_, port);
     struct stat st {};
-    if (::stat(path.c_str(), &st) != 0 || MappedInodes(maps, path).count(st.st_ino) == 0) {
+    if (::stat(path.c_str(), &st) != 0) {
       replaced.push_back(port);
+      mapped_.erase(port);
+      continue;
+    }
+    const auto seen = mapped_.find(port);
+    if (seen != mapped_.end() && seen->second == st.st_ino) continue;  // the same file: still mapped
+    if (!maps) maps = ReadAll("/proc/self/maps");
+    if (MappedInodes(*maps, path).count(st.st_ino) == 0) {
+      replaced.push_back(port);
+      mapped_.erase(port);
+    } else {
+      mapped_[port] = st.st_ino;
     }
   }
   return replaced;
