@@ -952,10 +952,9 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
             if why:
                 # The observer is one more matched reader on every writer: the step rates of
                 # runs with and without it differ (about a fifth at 4 agents, docs/BENCHMARKS.md).
-                log(f"lockstep: no step latency or discovery figures, and step rates not comparable "
-                    f"with runs that had the observer: {why}")
-                res["skipped"]["step_observer"] = (why + "; no latency or discovery figures, and step rates "
-                                                   "not comparable with runs that had the observer")
+                lacks = "no latency or discovery figures, and step rates not comparable with runs that had the observer"
+                log(f"lockstep: {lacks}: {why}")
+                res["skipped"]["step_observer"] = f"{why}; {lacks}"
         pp = {"shm": [], "udp": []}
         lock, floor, exch = {}, {}, {}
         if pingpong_exe or alltoall_exe or "lockstep" in sections:
