@@ -608,10 +608,12 @@ void AddNetwork(std::vector<KeySpec>* keys) {
       .AtMost(10.0)
       .Unit("s")
       .Doc("exchange: tree, realtime mode: how long a relay waits for its children's batches "
-           "of a step before it forwards what it holds; what comes later goes on at once "
-           "and is fused late. Keep it well within the period. In lockstep a relay waits "
-           "at least a quarter of step_timeout_s, and gathers what comes later for half "
-           "that wait.");
+           "of a step, per level of the tree below it, before it forwards what it holds; at "
+           "most deadline_fraction x period_s / (levels + 1), so that the root's wait leaves "
+           "a share for the way down. A parent outwaits its children by one share. What "
+           "comes later goes on at once and is fused late (docs/SCALING.md). In lockstep a "
+           "relay waits at least a quarter of step_timeout_s, and gathers what comes later "
+           "for half that wait.");
   t.Add("relay_lease_s", [](Config& c) -> auto& { return c.network.relay_lease_s; })
       .Default(0.0)
       .AtLeast(0.0)

@@ -50,14 +50,29 @@ std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, 
   return out;
 }
 
-double RelayWaitS(const Config& config) {
+int HeightInTree(const std::vector<AgentId>& members, AgentId id, int fanout) {
+  int height = 0;
+  for (AgentId m : SubtreeOf(members, id, fanout)) {
+    int hops = 0;
+    for (std::optional<AgentId> at = m; at && *at != id; at = ParentInTree(members, *at, fanout)) ++hops;
+    height = std::max(height, hops);
+  }
+  return height;
+}
+
+double RelayWaitS(const Config& config, int height, int depth) {
   // In lock-step nothing is gained by forwarding part of a step early: a relay waits for
   // its children up to a quarter of step_timeout_s (a lost child leaves the members sooner).
   // Partial batches and the late ones after them only cost samples.
   if (config.scenario.mode == StepMode::kLockStep) {
     return std::max(config.network.relay_wait_s, 0.25 * config.network.step_timeout_s);
   }
-  return config.network.relay_wait_s;
+  // Real time: the waits of a relay and of its parent start within a hop of each other (as
+  // each hears of the step), so a parent waits one share more than its children. A leaf
+  // waits one share for its own contribution.
+  const double deadline_s = config.network.deadline_fraction * config.scenario.period_s;
+  const double share_s = std::min(config.network.relay_wait_s, deadline_s / (std::max(depth, 1) + 1));
+  return std::max(height, 1) * share_s;
 }
 
 TreeExchange::TreeExchange(const Config& config, Options options)
@@ -69,15 +84,22 @@ TreeExchange::TreeExchange(const Config& config, Options options)
       // overran a relay's history between 4 hosts), sent at once in real time, where every
       // hop of delay is a deadline missed (at 10 % loss, 3 hosts, 20 agents: 85 % of the
       // agent-steps complete against 71 %).
-      late_gather_s_(config.scenario.mode == StepMode::kLockStep ? 0.5 * wait_s_ : 0.0),
+      late_gather_s_(config.scenario.mode == StepMode::kLockStep ? 0.5 * RelayWaitS(config) : 0.0),
       keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)),
       parent_lapses_(config.network.liveliness_grace_s) {
   for (AgentId id = 1; id <= static_cast<AgentId>(config.agents.count); ++id) members_.insert(id);
   members_.insert(options_.self);
   given_ = members_;
   sorted_.assign(members_.begin(), members_.end());
+  Place();
+}
+
+void TreeExchange::Place() {
   place_ = PlaceInTree(sorted_, options_.self, fanout_);
+  child_subtrees_.clear();
   for (AgentId child : place_.children) child_subtrees_.push_back(SubtreeOf(sorted_, child, fanout_));
+  wait_s_ = RelayWaitS(config_, HeightInTree(sorted_, options_.self, fanout_),
+                       HeightInTree(sorted_, sorted_.front(), fanout_));
 }
 
 void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
@@ -128,9 +150,7 @@ void TreeExchange::Rebuild(double now_s, std::optional<AgentId> silent) {
   sorted_.assign(members_.begin(), members_.end());
   const TreePlace old = place_;
   const std::optional<AgentId> old_parent = place_.parent;
-  place_ = PlaceInTree(sorted_, options_.self, fanout_);
-  child_subtrees_.clear();
-  for (AgentId child : place_.children) child_subtrees_.push_back(SubtreeOf(sorted_, child, fanout_));
+  Place();
   const bool new_child = std::any_of(place_.children.begin(), place_.children.end(), [&old](AgentId c) {
     return std::find(old.children.begin(), old.children.end(), c) == old.children.end();
   });
@@ -251,8 +271,9 @@ void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
   }
   for (const RelayedContribution& item : batch.items) Take(item, batch.down, now_s);
   if (batch.down) {
-    // From the parent: passed on at once to the children, with what this agent holds.
-    SendDown(batch.step);
+    // From the parent: passed on to the children, with what this agent holds, as the
+    // actions are taken: the batches of one wake-up go on as one (FlushForwarded).
+    forward_down_ = std::max(forward_down_.value_or(0), batch.step);
   } else if (batch.step > 0) {
     if (StepState* s = StateOf(batch.step, now_s)) {
       s->reported.insert(batch.sender_id);
@@ -382,7 +403,19 @@ void TreeExchange::OnTimer(double now_s) {
   if (!late_since_) late_since_ = now_s;
   if (now_s >= *late_since_ + late_gather_s_) {
     late_since_.reset();
+    forward_late_ = true;  // as the actions are taken (FlushForwarded)
+  }
+}
+
+void TreeExchange::FlushForwarded() {
+  if (forward_late_) {
+    forward_late_ = false;
     SendOutward(0);
+  }
+  if (forward_down_) {
+    const StepIndex step = *forward_down_;
+    forward_down_.reset();
+    SendDown(step);
   }
 }
 
@@ -401,6 +434,7 @@ std::optional<double> TreeExchange::NextDeadline() const {
 }
 
 std::vector<TreeAction> TreeExchange::TakeActions() {
+  FlushForwarded();
   std::vector<TreeAction> out;
   out.swap(actions_);
   return out;

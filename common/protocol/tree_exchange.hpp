@@ -7,7 +7,7 @@
 // in which a lost member's children hang under its parent. Every agent computes it from the
 // same membership, so no election is needed. A step's contributions go up, each relay sending
 // its subtree's as one batch once it holds its own and one batch of the step from each
-// child that has a measured agent below it (or after network.relay_wait_s, whichever comes
+// child that has a measured agent below it (or after its wait, RelayWaitS, whichever comes
 // first); the root sends all of them down as one batch, which every relay passes on to its
 // children. So a step costs 2 (N - 1) deliveries instead of N (N - 1).
 //
@@ -50,10 +50,20 @@ struct TreePlace {
 TreePlace PlaceInTree(const std::vector<AgentId>& members, AgentId self, int fanout);
 // The ids of the subtree under `id` (itself included, ascending); empty if `id` is not a member.
 std::vector<AgentId> SubtreeOf(const std::vector<AgentId>& members, AgentId id, int fanout);
+// The height of `id` in the tree of `members`: the most hops from a member below it up to it
+// (0: a leaf, or not a member). The root's is the depth of the tree.
+int HeightInTree(const std::vector<AgentId>& members, AgentId id, int fanout);
 
-// How long a relay waits for its children's batches of a step: network.relay_wait_s in real
-// time; in lock-step at least a quarter of network.step_timeout_s.
-double RelayWaitS(const Config& config);
+// How long a relay of `height` levels above its lowest descendant waits for its children's
+// batches of a step, in a tree `depth` levels deep (docs/SCALING.md, "Waiting"). In lock-step
+// at least a quarter of network.step_timeout_s, whatever the height. In real time a share of
+// the step's deadline per level below it, so that a parent outwaits its children: max(height,
+// 1) x min(network.relay_wait_s, deadline / (depth + 1)), the deadline being
+// network.deadline_fraction x scenario.period_s; the root's wait leaves a share for the way
+// down. (With one wait for every relay, a parent gave up on its children as they gave up on
+// theirs, and each late batch that reached the root went down to every agent as one more
+// sample: at 64 agents, 13 batches down per agent and step instead of 1.)
+double RelayWaitS(const Config& config, int height = 1, int depth = 1);
 
 namespace tree_action {
 struct Send {  // batch.down: to the children (deif/relay_down), else to the parent
@@ -115,6 +125,10 @@ class TreeExchange {
 
   // When OnTimer should next be called (nullopt: only events move it on).
   std::optional<double> NextDeadline() const;
+  // The actions so far. What came down from the parent, and what came late, goes on here:
+  // everything that arrived since the last call as one batch each way (at 64 agents in real
+  // time, a batch down per late one from each child multiplied down the tree until the run
+  // could not keep up; taken after each wake-up's samples, those of one wake-up go as one).
   std::vector<TreeAction> TakeActions();
 
   const TreePlace& place() const { return place_; }
@@ -136,6 +150,7 @@ class TreeExchange {
   bool Root() const { return !place_.parent.has_value(); }
   // The tree of the members less the silent parents; moves this agent if its place changed.
   void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
+  void Place();  // place_, child_subtrees_ and wait_s_ from sorted_
   void CheckSilence(double now_s);
   void LeaveSilent(AgentId parent, double now_s);  // if it is still the parent
   // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
@@ -166,7 +181,7 @@ class TreeExchange {
   const Config& config_;
   const Options options_;
   const int fanout_;
-  const double wait_s_;
+  double wait_s_;  // RelayWaitS of this agent's place in the tree
   const double late_gather_s_;
   const StepIndex keep_;  // steps kept behind (and ahead of) the newest roll call
 
@@ -182,6 +197,9 @@ class TreeExchange {
   StepIndex newest_ = 0;  // the newest step of a roll call, of this agent's own or of a batch
   bool heard_roll_call_ = false;  // a roll call of the target has reached this agent
   std::optional<double> late_since_;  // late items wait to go on since then
+  std::optional<StepIndex> forward_down_;  // what came down goes on to the children (the newest step)
+  bool forward_late_ = false;              // what came late goes on outward
+  void FlushForwarded();                   // both, at TakeActions
   // Items (step, origin id) stored and not yet sent up / down, in arrival order.
   std::vector<std::pair<StepIndex, AgentId>> unsent_up_, unsent_down_;
   std::vector<TreeAction> actions_;

@@ -280,11 +280,13 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   relay.OnOwn(Contribution(2, 1), 1.0);
   BatchMsg from5{kRun, 5, 1, false, {{WriterOf(5), Contribution(5, 1)}}};
   relay.OnBatch(from5, 1.01);
-  // Waiting for 4: nothing goes up before the wait is over.
+  // Waiting for 4: nothing goes up before the wait is over. The wait is a share of the
+  // deadline (0.8 x 0.1 s) per level in a tree 2 levels deep, 0.08 / 3 s, less than the
+  // relay_wait_s of 0.05 s; 2 is one level above its children.
   for (const auto& a : relay.TakeActions()) CHECK_FALSE(std::holds_alternative<protocol::tree_action::Send>(a));
   REQUIRE(relay.NextDeadline().has_value());
-  CHECK(*relay.NextDeadline() == Approx(1.05));
-  relay.OnTimer(1.05);
+  CHECK(*relay.NextDeadline() == Approx(1.0 + 0.08 / 3.0));
+  relay.OnTimer(1.0 + 0.08 / 3.0);
   std::vector<protocol::TreeAction> actions = relay.TakeActions();
   REQUIRE(actions.size() == 1);
   const auto& up = std::get<protocol::tree_action::Send>(actions[0]).batch;
@@ -309,6 +311,98 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   }
   CHECK(sends == 1);
   CHECK(delivers == 1);
+}
+
+TEST_CASE("The height of an agent in the tree: the most hops up to it from below", "[protocol][tree]") {
+  // Fan-out 2 over 1..7: 1 above 2 and 3, 2 above 4 and 5, 3 above 6 and 7.
+  const std::vector<AgentId> all = Range(1, 7);
+  CHECK(protocol::HeightInTree(all, 1, 2) == 2);
+  CHECK(protocol::HeightInTree(all, 2, 2) == 1);
+  CHECK(protocol::HeightInTree(all, 7, 2) == 0);
+  CHECK(protocol::HeightInTree(all, 9, 2) == 0);  // not a member
+  // Without 2, its children hang under 1: 1 is still two levels above 6 and 7.
+  CHECK(protocol::HeightInTree({1, 3, 4, 5, 6, 7}, 1, 2) == 2);
+  CHECK(protocol::HeightInTree({1, 4, 5}, 1, 2) == 1);
+  // 64 agents with fan-out 4: 1 above 2-5; 2 above 6-9, 5 above 18-21; 6 above 22-25, 16
+  // above 58-61; 17 is a leaf (its children would be 66-69).
+  CHECK(protocol::HeightInTree(Range(1, 64), 1, 4) == 3);
+  CHECK(protocol::HeightInTree(Range(1, 64), 2, 4) == 2);
+  CHECK(protocol::HeightInTree(Range(1, 64), 5, 4) == 1);
+  CHECK(protocol::HeightInTree(Range(1, 64), 16, 4) == 1);
+  CHECK(protocol::HeightInTree(Range(1, 64), 17, 4) == 0);
+}
+
+TEST_CASE("In real time a parent waits one share of the deadline more than its children", "[protocol][tree]") {
+  // Period 0.1 s, deadline 0.08 s; a tree 3 levels deep gives each level 0.02 s at most.
+  const deif::Config config = ConfigFor(64, 4, 0.05);
+  CHECK(protocol::RelayWaitS(config, 3, 3) == Approx(0.06));  // the root: 0.02 s left for the way down
+  CHECK(protocol::RelayWaitS(config, 1, 3) == Approx(0.02));
+  CHECK(protocol::RelayWaitS(config, 0, 3) == Approx(0.02));  // a leaf waits for its own contribution
+  // relay_wait_s below the share is the share.
+  CHECK(protocol::RelayWaitS(ConfigFor(64, 4, 0.01), 2, 3) == Approx(0.02));
+  // Lock-step: a quarter of the step timeout at every height.
+  const deif::Config lockstep = deif::ParseConfig("network: {relay_wait_s: 0.01, step_timeout_s: 2}\n", "inline");
+  CHECK(protocol::RelayWaitS(lockstep, 3, 3) == Approx(0.5));
+
+  // The root of 7 agents (fan-out 2, 2 levels, share 0.08 / 3 s) with one child's batch in
+  // waits two shares for the other.
+  TreeExchange root(ConfigFor(7, 2, 0.05), TreeExchange::Options{1, kRun, WriterOf(1)});
+  root.OnRollCall(1, Range(1, 7), 1.0);
+  root.OnOwn(Contribution(1, 1), 1.0);
+  root.OnBatch(BatchMsg{kRun, 2, 1, false, {{WriterOf(2), Contribution(2, 1)}}}, 1.01);
+  for (const auto& a : root.TakeActions()) CHECK_FALSE(std::holds_alternative<protocol::tree_action::Send>(a));
+  REQUIRE(root.NextDeadline().has_value());
+  CHECK(*root.NextDeadline() == Approx(1.0 + 2.0 * 0.08 / 3.0));
+  root.OnTimer(1.04);  // past one share, within two
+  for (const auto& a : root.TakeActions()) CHECK_FALSE(std::holds_alternative<protocol::tree_action::Send>(a));
+  root.OnTimer(1.0 + 2.0 * 0.08 / 3.0);
+  int sends = 0;
+  for (const auto& a : root.TakeActions()) {
+    if (const auto* send = std::get_if<protocol::tree_action::Send>(&a)) {
+      ++sends;
+      CHECK(send->batch.down);
+      CHECK(send->batch.items.size() == 2);
+    }
+  }
+  CHECK(sends == 1);
+}
+
+TEST_CASE("What comes down or late between two takes of the actions goes on as one batch", "[protocol][tree]") {
+  // 2 relays 4 and 5 under the root 1 (fan-out 2, 7 agents).
+  const deif::Config config = ConfigFor(7, 2);
+  TreeExchange relay(config, TreeExchange::Options{2, kRun, WriterOf(2)});
+  relay.OnRollCall(1, Range(1, 7), 1.0);
+  relay.TakeActions();
+  // Two batches from the parent before the actions are taken (one wake-up): one batch down.
+  relay.OnBatch(BatchMsg{kRun, 1, 0, true, {{WriterOf(1), Contribution(1, 1)}}}, 1.001);
+  relay.OnBatch(BatchMsg{kRun, 1, 1, true, {{WriterOf(3), Contribution(3, 1)}}}, 1.002);
+  int downs = 0, delivers = 0;
+  for (const auto& a : relay.TakeActions()) {
+    if (const auto* send = std::get_if<protocol::tree_action::Send>(&a)) {
+      ++downs;
+      CHECK(send->batch.down);
+      CHECK(send->batch.step == 1);
+      CHECK(send->batch.items.size() == 2);
+    }
+    delivers += std::holds_alternative<protocol::tree_action::Deliver>(a) ? 1 : 0;
+  }
+  CHECK(downs == 1);
+  CHECK(delivers == 2);
+  // Its batch up gone without its children's (the wait over), both come late in one
+  // wake-up: one batch up with both.
+  relay.OnOwn(Contribution(2, 1), 1.003);
+  relay.OnTimer(1.05);
+  relay.TakeActions();
+  relay.OnBatch(BatchMsg{kRun, 4, 1, false, {{WriterOf(4), Contribution(4, 1)}}}, 1.06);
+  relay.OnBatch(BatchMsg{kRun, 5, 1, false, {{WriterOf(5), Contribution(5, 1)}}}, 1.061);
+  int ups = 0;
+  for (const auto& a : relay.TakeActions()) {
+    if (const auto* send = std::get_if<protocol::tree_action::Send>(&a)) {
+      ups += send->batch.down ? 0 : 1;
+      if (!send->batch.down) CHECK(send->batch.items.size() == 2);
+    }
+  }
+  CHECK(ups == 1);
 }
 
 TEST_CASE("A relay that never hears the target relays its subtree at once, however long the run",
