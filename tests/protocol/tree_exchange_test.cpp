@@ -346,7 +346,8 @@ TEST_CASE("In real time a parent waits one share of the deadline more than its c
 
   // The root of 7 agents (fan-out 2, 2 levels, share 0.08 / 3 s) with one child's batch in
   // waits two shares for the other.
-  TreeExchange root(ConfigFor(7, 2, 0.05), TreeExchange::Options{1, kRun, WriterOf(1)});
+  const deif::Config seven = ConfigFor(7, 2, 0.05);  // outlives the exchange
+  TreeExchange root(seven, TreeExchange::Options{1, kRun, WriterOf(1)});
   root.OnRollCall(1, Range(1, 7), 1.0);
   root.OnOwn(Contribution(1, 1), 1.0);
   root.OnBatch(BatchMsg{kRun, 2, 1, false, {{WriterOf(2), Contribution(2, 1)}}}, 1.01);
