@@ -862,9 +862,8 @@ struct Node::Impl {
     fdds::DataWriter* writer;
     Clock::duration period;
     const MatchListener* matches;
-    // The thread that asserts it (StartLiveliness): 0 the others, 1 relay writers, 2 the
-    // state writer, whose readers are the target's and the observers'.
-    int thread = 0;
+    // The thread that asserts it (StartLiveliness).
+    enum class Thread { kOthers, kRelay, kState } thread = Thread::kOthers;
   };
   std::vector<Asserted> asserted;
   std::thread asserter, relay_asserter, state_asserter;
@@ -1207,8 +1206,11 @@ void Node::StartLiveliness() {
       const auto listener = d.writer_listeners.find(topic);
       const MatchListener* matches =
           topic != Topic::kRange && listener != d.writer_listeners.end() ? listener->second.get() : nullptr;
+      using Thread = Impl::Asserted::Thread;
       d.asserted.push_back({writer, Seconds(AssertPeriodOf(spec, d.config)), matches,
-                            spec.relay_lease ? 1 : topic == Topic::kAgentState ? 2 : 0});
+                            spec.relay_lease                ? Thread::kRelay
+                            : topic == Topic::kAgentState ? Thread::kState
+                                                          : Thread::kOthers});
     }
     for (const Impl::Asserted& a : d.asserted) d.last_write[a.writer] = Clock::now() - a.period;
     // A write renews a writer's liveliness, so only writers idle for their period assert: in
@@ -1220,11 +1222,11 @@ void Node::StartLiveliness() {
     // tells a relay's children that it is gone, and an assertion of another writer stuck at
     // a dead peer's port (every contribution writer has a reader there) must not let it
     // lapse (at 64 agents in real time that moved every relay's children at once). So has
-    // the state writer, whose reader is the target's: stuck at the port of a target that
-    // crashed, it held back the contribution writer's assertions, and the peers lost every
-    // agent waiting for the restarted target's range (4 agents, a lease of 0.4 s). Writers
-    // live until the threads are joined.
-    const auto assert_loop = [&d](int thread) {
+    // the state writer, whose reader is the target's: most likely stuck at the port of a
+    // target that crashed, it held back the contribution writer's assertions, and the peers
+    // lost every agent waiting for the restarted target's range (4 agents, a lease of 0.4 s;
+    // docs/FASTDDS_NOTES.md). Writers live until the threads are joined.
+    const auto assert_loop = [&d](Impl::Asserted::Thread thread) {
       std::vector<fdds::DataWriter*> due;
       std::unique_lock<std::mutex> held(d.assert_mutex);
       while (!d.assert_stop) {
@@ -1248,13 +1250,14 @@ void Node::StartLiveliness() {
         d.assert_cv.wait_until(held, next, [&d] { return d.assert_stop; });
       }
     };
-    d.asserter = std::thread(assert_loop, 0);
-    const auto any_of = [&d](int thread) {
+    using Thread = Impl::Asserted::Thread;
+    d.asserter = std::thread(assert_loop, Thread::kOthers);
+    const auto any_of = [&d](Thread thread) {
       return std::any_of(d.asserted.begin(), d.asserted.end(),
                          [thread](const Impl::Asserted& a) { return a.thread == thread; });
     };
-    if (any_of(1)) d.relay_asserter = std::thread(assert_loop, 1);
-    if (any_of(2)) d.state_asserter = std::thread(assert_loop, 2);
+    if (any_of(Thread::kRelay)) d.relay_asserter = std::thread(assert_loop, Thread::kRelay);
+    if (any_of(Thread::kState)) d.state_asserter = std::thread(assert_loop, Thread::kState);
   }
 }
 
