@@ -272,14 +272,16 @@ class Launcher:
 
         # The effective config: the C++ parser's verdict on the file plus every override.
         sets = list(overrides)
-        if agents is not None:
-            sets.append(f"agents.count={agents}")
-        if steps is not None:
-            sets.append(f"scenario.steps={steps}")
-        if seed is not None:
-            sets.append(f"scenario.seed={seed}")
-        if domain is not None:
-            sets.append(f"network.domain_id={domain}")
+        # An override this launcher made from one of its options is named by that option in
+        # an error ("--agents 1: key 'agents.count': ..."), not as a --set the user never gave.
+        flags = {}
+        for option, key, value in (("--agents", "agents.count", agents),
+                                   ("--steps", "scenario.steps", steps),
+                                   ("--seed", "scenario.seed", seed),
+                                   ("--domain", "network.domain_id", domain)):
+            if value is not None:
+                sets.append(f"{key}={value}")
+                flags[f"--set {key}:"] = f"{option} {value}:"
         if hosts > 1:
             sets.append("network.transport=udp")  # shared memory would cross the "hosts"
         self.discovery_server = None  # (address, port) when the run has its own server
@@ -297,7 +299,11 @@ class Launcher:
         try:
             resolved = cfg.resolve(config_path, sets)
         except cfg.ConfigRefused as e:
-            raise LaunchError(str(e))
+            reason = str(e)
+            for given, option in flags.items():
+                if reason.startswith(given):
+                    reason = option + reason[len(given):]
+            raise LaunchError(reason)
         file_faults = [Fault(int(f["step"]), f["action"], f.get("agent"))
                        for f in resolved.get("faults") or []]
         extra = list(faults)

@@ -186,9 +186,19 @@ def test_domain_out_of_range_starts_nothing(work):
     assert status == 2
     assert stdout == ""
     assert len(stderr) == 1
-    assert stderr[0].startswith("deif-run: error: ")
-    assert "network.domain_id" in stderr[0] and "300" in stderr[0]
+    # Named by the option the user gave, then by the key it sets.
+    assert stderr[0] == ("deif-run: error: --domain 300: key 'network.domain_id': "
+                         "must be in 0..232 (got 300)")
     assert not os.path.exists(out)  # no run folder, so no process was started
+
+
+def test_one_agent_is_refused_by_its_option(work):
+    out = os.path.join(work, "run")
+    status, stdout, stderr = run_tool([PYTHON, DEIF_RUN, DEFAULT, "--agents", "1", "--out", out])
+    assert status == 2
+    assert stdout == ""
+    assert stderr == ["deif-run: error: --agents 1: key 'agents.count': must be in 2..512 (got 1)"]
+    assert not os.path.exists(out)
 
 
 def test_unwritable_run_folder_is_one_line(work):
