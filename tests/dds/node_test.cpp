@@ -153,6 +153,62 @@ TEST_CASE("endpoints in different sub-partitions do not match; in the same one t
   }
 }
 
+TEST_CASE("a reader moved to another sub-partition matches its new writer and keeps what it held",
+          "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  // A child of the tree exchange moving from parent a to parent b (docs/SCALING.md): the
+  // batch of a that arrived before the move is handed out after it, and b's batches come.
+  deif::dds::Node parent_a(config, "node-test-move-a", "node_move");
+  deif::dds::Node parent_b(config, "node-test-move-b", "node_move");
+  deif::dds::Node child(config, "node-test-move-child", "node_move");
+  parent_a.SetSubPartitions(Topic::kRelayDown, "down.a", "unused");
+  parent_a.AddWriter(Topic::kRelayDown);
+  parent_b.SetSubPartitions(Topic::kRelayDown, "down.b", "unused");
+  parent_b.AddWriter(Topic::kRelayDown);
+  child.SetSubPartitions(Topic::kRelayDown, "unused", "down.a");
+  child.AddReader({Topic::kRelayDown, {}});
+  parent_a.StartLiveliness();
+  parent_b.StartLiveliness();
+  // The child does not Wait() before the move, so the batch stays in its reader.
+  REQUIRE(Within(10.0, parent_a, [&] { return parent_a.MatchedReaders(Topic::kRelayDown) == 1; }));
+  deif::protocol::BatchMsg batch;
+  batch.run = deif::protocol::RunTokenOf("node_move");
+  batch.sender_id = 1;
+  batch.step = 7;
+  batch.down = true;
+  parent_a.Write(batch);
+  REQUIRE(parent_a.WaitForAcknowledgments(10.0));  // it is in the child's reader
+
+  child.MoveSubPartitions(Topic::kRelayDown, "unused", "down.b");
+  // At once, without waiting for anything to arrive: the batch taken from the old reader.
+  const auto t0 = Clock::now();
+  const auto first = child.Wait(Clock::now() + std::chrono::seconds(5));
+  CHECK(Clock::now() - t0 < std::chrono::seconds(1));
+  std::vector<std::pair<deif::AgentId, deif::StepIndex>> got;
+  const auto note = [&got](const std::vector<deif::dds::Event>& events) {
+    for (const auto& event : events) {
+      if (const auto* r = std::get_if<deif::dds::Received<deif::protocol::BatchMsg>>(&event)) {
+        CHECK(r->msg.down);
+        got.emplace_back(r->msg.sender_id, r->msg.step);
+      }
+    }
+  };
+  note(first);
+  CHECK(got == std::vector<std::pair<deif::AgentId, deif::StepIndex>>{{1, 7}});
+
+  REQUIRE(Within(10.0, child, [&] { return parent_b.MatchedReaders(Topic::kRelayDown) == 1; }));
+  CHECK(Within(10.0, child, [&] { return parent_a.MatchedReaders(Topic::kRelayDown) == 0; }));
+  batch.sender_id = 2;
+  batch.step = 8;
+  parent_b.Write(batch);
+  CHECK(Within(10.0, parent_b, [&] {
+    note(child.Wait(Clock::now() + std::chrono::milliseconds(20)));
+    return got.size() >= 2;
+  }));
+  CHECK(got == std::vector<std::pair<deif::AgentId, deif::StepIndex>>{{1, 7}, {2, 8}});
+}
+
 TEST_CASE("sub-partitions are refused with security or ROS 2 naming", "[dds][node]") {
   const deif::Config config = deif::ParseConfig(
       "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp, ros2_naming: true}\n", "node_test");
