@@ -1083,7 +1083,23 @@ void Node::SetSubPartitions(Topic topic, const std::string& writer_suffix, const
 }
 
 namespace {
+
 void StashPending(Node::Impl& d, Topic topic);  // with TakeAll, below
+
+// Makes the node's reader of `topic` in `subscriber`, woken by the node's Wait().
+void MakeReader(Node::Impl& d, Topic topic, fdds::Subscriber* subscriber, fdds::TopicDescription* description,
+                const fdds::DataReaderQos& qos, LivelinessListener* listener) {
+  fdds::DataReader* reader = subscriber->create_datareader(
+      description, qos, listener,
+      fdds::StatusMask::liveliness_changed() << fdds::StatusMask::subscription_matched());
+  if (reader == nullptr) {
+    throw std::runtime_error(std::string("cannot create a reader on ") + NamesOf(topic).name);
+  }
+  reader->get_statuscondition().set_enabled_statuses(fdds::StatusMask::data_available());
+  d.waitset.attach_condition(reader->get_statuscondition());
+  d.readers[topic] = reader;
+}
+
 }  // namespace
 
 void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix) {
@@ -1126,15 +1142,7 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
     }
     d.readers.erase(r);
     moved(reader_suffix, subscriber, "subscriber");
-    fdds::DataReader* fresh = subscriber->create_datareader(
-        description, qos, d.listeners.at(topic).get(),
-        fdds::StatusMask::liveliness_changed() << fdds::StatusMask::subscription_matched());
-    if (fresh == nullptr) {
-      throw std::runtime_error(std::string("cannot create a reader on ") + NamesOf(topic).name);
-    }
-    fresh->get_statuscondition().set_enabled_statuses(fdds::StatusMask::data_available());
-    d.waitset.attach_condition(fresh->get_statuscondition());
-    d.readers[topic] = fresh;
+    MakeReader(d, topic, subscriber, description, qos, d.listeners.at(topic).get());
   }
 }
 
@@ -1194,15 +1202,7 @@ void Node::AddReader(const ReaderSpec& spec) {
     subscriber = d.participant->create_subscriber(qos);
     if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
   }
-  fdds::DataReader* reader = subscriber->create_datareader(
-      description, ReaderQos(topic, d.config), listener.get(),
-      fdds::StatusMask::liveliness_changed() << fdds::StatusMask::subscription_matched());
-  if (reader == nullptr) {
-    throw std::runtime_error(std::string("cannot create a reader on ") + NamesOf(topic).name);
-  }
-  reader->get_statuscondition().set_enabled_statuses(fdds::StatusMask::data_available());
-  d.waitset.attach_condition(reader->get_statuscondition());
-  d.readers[topic] = reader;
+  MakeReader(d, topic, subscriber, description, ReaderQos(topic, d.config), listener.get());
   d.listeners[topic] = std::move(listener);
 }
 
