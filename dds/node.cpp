@@ -1084,7 +1084,8 @@ void Node::SetSubPartitions(Topic topic, const std::string& writer_suffix, const
 
 namespace {
 
-void StashPending(Node::Impl& d, Topic topic);  // with TakeAll, below
+// Takes every sample waiting in the node's reader of `topic` (with TakeAll, below).
+void TakeTopic(Node::Impl& d, Topic topic, std::vector<Event>& out);
 
 // Makes the node's reader of `topic` in `subscriber`, woken by the node's Wait().
 void MakeReader(Node::Impl& d, Topic topic, fdds::Subscriber* subscriber, fdds::TopicDescription* description,
@@ -1109,11 +1110,14 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
   }
   d.writer_sub_partitions[topic] = writer_suffix;
   d.reader_sub_partitions[topic] = reader_suffix;
-  const auto moved = [&d](const std::string& suffix, const auto& entity, const char* what) {
+  const auto already_in = [&d](const std::string& suffix, const auto& entity) {
+    const auto names = entity->get_qos().partition().getNames();
+    return names.size() == 1 && names.front() == "deif." + d.run_name + "." + suffix;
+  };
+  const auto moved = [&d, &already_in](const std::string& suffix, const auto& entity, const char* what) {
+    if (already_in(suffix, entity)) return;
     auto qos = entity->get_qos();
     const std::string partition = "deif." + d.run_name + "." + suffix;
-    const auto names = qos.partition().getNames();
-    if (names.size() == 1 && names.front() == partition) return;
     qos.partition().clear();
     qos.partition().push_back(partition.c_str());
     if (entity->set_qos(qos) != ReturnCode_t::RETCODE_OK) {
@@ -1123,27 +1127,26 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
   if (auto w = d.writers.find(topic); w != d.writers.end()) {
     moved(writer_suffix, const_cast<fdds::Publisher*>(w->second->get_publisher()), "publisher");
   }
-  if (auto r = d.readers.find(topic); r != d.readers.end()) {
-    auto* subscriber = const_cast<fdds::Subscriber*>(r->second->get_subscriber());
-    const auto names = subscriber->get_qos().partition().getNames();
-    if (names.size() == 1 && names.front() == "deif." + d.run_name + "." + reader_suffix) return;
-    // A new reader, not the old one moved: a reader moved away from a writer and back while
-    // the two could not hear each other (a partition of the network) came back with the
-    // writer's old record of it, and in 2 of 4 runs got nothing from that writer for 25-31
-    // steps after the network healed (docs/FASTDDS_NOTES.md, "A reader moved and moved back").
-    // A new reader is a reader the writer has never seen. What the old one held is kept.
-    fdds::DataReader* old = r->second;
-    StashPending(d, topic);
-    auto* description = const_cast<fdds::TopicDescription*>(old->get_topicdescription());
-    const fdds::DataReaderQos qos = old->get_qos();
-    d.waitset.detach_condition(old->get_statuscondition());
-    if (subscriber->delete_datareader(old) != ReturnCode_t::RETCODE_OK) {
-      throw std::runtime_error(std::string("cannot delete the reader on ") + NamesOf(topic).name);
-    }
-    d.readers.erase(r);
-    moved(reader_suffix, subscriber, "subscriber");
-    MakeReader(d, topic, subscriber, description, qos, d.listeners.at(topic).get());
+  auto r = d.readers.find(topic);
+  if (r == d.readers.end()) return;
+  auto* subscriber = const_cast<fdds::Subscriber*>(r->second->get_subscriber());
+  if (already_in(reader_suffix, subscriber)) return;
+  // A new reader, not the old one moved: a reader moved away from a writer and back while
+  // the two could not hear each other (a partition of the network) came back with the
+  // writer's old record of it, and in 2 of 4 runs got nothing from that writer for 25-31
+  // steps after the network healed (docs/FASTDDS_NOTES.md, "A reader moved and moved back").
+  // A new reader is a reader the writer has never seen. What the old one held is kept.
+  fdds::DataReader* old = r->second;
+  TakeTopic(d, topic, d.stashed);
+  auto* description = const_cast<fdds::TopicDescription*>(old->get_topicdescription());
+  const fdds::DataReaderQos qos = old->get_qos();
+  d.waitset.detach_condition(old->get_statuscondition());
+  if (subscriber->delete_datareader(old) != ReturnCode_t::RETCODE_OK) {
+    throw std::runtime_error(std::string("cannot delete the reader on ") + NamesOf(topic).name);
   }
+  d.readers.erase(r);
+  moved(reader_suffix, subscriber, "subscriber");
+  MakeReader(d, topic, subscriber, description, qos, d.listeners.at(topic).get());
 }
 
 void Node::MakePassive() {
@@ -1327,17 +1330,23 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out) {
   TakeAll<Idl, Msg>(d, topic, out, [](const Idl& sample) { return FromIdl(sample); });
 }
 
-void TakeBatches(Node::Impl& d, Topic topic, std::vector<Event>& out) {
-  const bool down = topic == Topic::kRelayDown;
-  TakeAll<deif_msgs::ContributionBatch, protocol::BatchMsg>(
-      d, topic, out, [down](const deif_msgs::ContributionBatch& b) { return FromIdl(b, down); });
-}
-
-void StashPending(Node::Impl& d, Topic topic) {
-  if (topic != Topic::kRelayUp && topic != Topic::kRelayDown) {
-    throw std::logic_error(std::string("no stash for the samples of ") + NamesOf(topic).name);
+void TakeTopic(Node::Impl& d, Topic topic, std::vector<Event>& out) {
+  switch (topic) {
+    case Topic::kTruth:
+      return TakeAll<deif_msgs::Truth, protocol::TruthMsg>(d, topic, out);
+    case Topic::kRange:
+      return TakeAll<deif_msgs::Range, protocol::RangeMsg>(d, topic, out);
+    case Topic::kContribution:
+      return TakeAll<deif_msgs::Contribution, protocol::ContributionMsg>(d, topic, out);
+    case Topic::kAgentState:
+      return TakeAll<deif_msgs::AgentState, protocol::StateMsg>(d, topic, out);
+    case Topic::kRelayUp:
+    case Topic::kRelayDown: {
+      const bool down = topic == Topic::kRelayDown;
+      return TakeAll<deif_msgs::ContributionBatch, protocol::BatchMsg>(
+          d, topic, out, [down](const deif_msgs::ContributionBatch& b) { return FromIdl(b, down); });
+    }
   }
-  TakeBatches(d, topic, d.stashed);
 }
 
 }  // namespace
@@ -1364,12 +1373,7 @@ std::vector<Event> Node::Wait(Clock::time_point deadline) {
   }
   std::vector<Event> events;
   events.swap(d.stashed);
-  TakeAll<deif_msgs::Truth, protocol::TruthMsg>(d, Topic::kTruth, events);
-  TakeAll<deif_msgs::Range, protocol::RangeMsg>(d, Topic::kRange, events);
-  TakeAll<deif_msgs::Contribution, protocol::ContributionMsg>(d, Topic::kContribution, events);
-  TakeAll<deif_msgs::AgentState, protocol::StateMsg>(d, Topic::kAgentState, events);
-  TakeBatches(d, Topic::kRelayUp, events);
-  TakeBatches(d, Topic::kRelayDown, events);
+  for (const Topic topic : kAllTopics) TakeTopic(d, topic, events);
   std::vector<LivelinessChange> liveliness;
   {
     std::lock_guard<std::mutex> lock(d.events_mutex);

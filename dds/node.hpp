@@ -75,7 +75,7 @@ class Node {
   // sub-partitions (a relay of the tree exchange with a new parent): they unmatch the old
   // peers and match the new ones, which get this writer's history (transient local). The
   // reader is made anew there (docs/FASTDDS_NOTES.md, "A reader moved and moved back");
-  // the samples the old one held come out of the next Wait(). Relay topics only for a reader.
+  // the samples the old one held come out of the next Wait().
   // From the thread that calls Wait(), never during it.
   void MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
   // Deletes this node's reader of `topic` (and its content filter), if it has one: the
