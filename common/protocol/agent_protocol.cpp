@@ -222,14 +222,13 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
   if (ever_opened_) {
     auto first_far = early_.upper_bound(reach);
     while (static_cast<StepIndex>(std::distance(first_far, early_.end())) > span + 1) {
-      for (const auto& entry : first_far->second) Drop("agent " + std::to_string(entry.first), "too_far_ahead");
-      first_far = early_.erase(first_far);
+      first_far = DropEarly(first_far, std::next(first_far), "too_far_ahead");
     }
   }
   // Before the first step only the newest few steps are kept (a joining agent starts at the
   // newest step the target announces).
   const std::size_t keep = static_cast<std::size_t>(config_.network.fusion_window_steps) + 2;
-  while (!ever_opened_ && early_.size() > keep) early_.erase(early_.begin());
+  while (!ever_opened_ && early_.size() > keep) DropEarly(early_.begin(), std::next(early_.begin()), "skipped_step");
   if (!deferring_) Advance(now_s);
 }
 
@@ -513,7 +512,7 @@ void AgentProtocol::Advance(double now_s) {
                                  std::to_string(k));
       }
       records_.clear();
-      early_.erase(early_.begin(), early_.lower_bound(k));
+      DropEarly(early_.begin(), early_.lower_bound(k), "skipped_step");
       written_ = k - 1;
       needs_basis_ = k > 1;
       OpenStep(k, range, range.arrival_s);
@@ -653,6 +652,9 @@ void AgentProtocol::FinishStep(double now_s) {
       LogOnce(LogLevel::kInfo, "joining",
               "joining at step " + std::to_string(r.step) + ": waiting for a peer's posterior "
               "to adopt; no row until then (logged once)");
+      for (const auto& [peer_id, held] : r.held) {
+        if (peer_id != id_) Drop("agent " + std::to_string(peer_id), "skipped_step");
+      }
       written_ = r.step;
       open_ = false;
       records_.erase(r.step);
@@ -977,7 +979,7 @@ void AgentProtocol::Trim() {
   }
   if (!records_.empty()) {
     const StepIndex oldest = records_.begin()->first;
-    early_.erase(early_.begin(), early_.lower_bound(oldest));
+    DropEarly(early_.begin(), early_.lower_bound(oldest), "too_old");
   }
 }
 
@@ -1068,6 +1070,15 @@ void AgentProtocol::Drop(const std::string& who, const std::string& reason) {
   ++counters_.by_reason["dropped: " + reason];
   LogOnce(LogLevel::kInfo, who + "|dropped|" + reason,
           "dropped a message from " + who + ": " + reason + " (logged once)");
+}
+
+AgentProtocol::EarlyIt AgentProtocol::DropEarly(EarlyIt first, EarlyIt last, const std::string& reason) {
+  // Every contribution this agent received is fused, rejected or dropped, and counted: one it
+  // will never reach the step of is not lost silently (docs/PROTOCOL.md, "Bad input").
+  for (auto it = first; it != last; ++it) {
+    for (const auto& entry : it->second) Drop("agent " + std::to_string(entry.first), reason);
+  }
+  return early_.erase(first, last);
 }
 
 void AgentProtocol::Log(LogLevel level, std::string text) {

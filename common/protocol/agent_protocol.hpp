@@ -261,6 +261,9 @@ class AgentProtocol {
   bool AcceptIdentity(const ContributionMsg& msg, const SenderKey& from, double now_s);
   void Reject(const std::string& who, const std::string& reason, std::int64_t count = 1);
   void Drop(const std::string& who, const std::string& reason);
+  // Drops (and counts, under `reason`) the held contributions of early_'s steps in [first, last).
+  using EarlyIt = std::map<StepIndex, std::map<AgentId, Held>>::iterator;
+  EarlyIt DropEarly(EarlyIt first, EarlyIt last, const std::string& reason);
   void Log(LogLevel level, std::string text);
   void LogOnce(LogLevel level, const std::string& key, std::string text);
   void Publish(const StateMsg& msg);

@@ -1078,6 +1078,56 @@ TEST_CASE("After a freeze longer than the history, a backlog of contributions th
   }
 }
 
+TEST_CASE("Contributions held for the steps an agent skips when it rejoins beyond the history "
+          "are counted as dropped, not lost uncounted",
+          "[protocol]") {
+  // GIVEN agent 3 frozen from step 3 to step 20 (the history is 8 steps)
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  const auto frozen = net.Freeze(3);
+  net.RunUntil(20, frozen);
+  const auto step_of = [](const Envelope& e) {
+    return std::visit([](const auto& m) -> StepIndex { return m.step; }, e.message);
+  };
+  const auto is_contribution = [](const Envelope& e) {
+    return std::holds_alternative<protocol::ContributionMsg>(e.message);
+  };
+  // WHEN of its backlog only the peers' contributions of steps 13..20 reach it, then the
+  // target's ranges of steps 17..20 (those of 13..16 are lost)
+  std::deque<Envelope> kept;
+  long skipped = 0;  // contributions of the steps it will skip
+  for (Envelope& e : net.held) {
+    if (e.to != 3 || step_of(e) <= 12) continue;
+    if (step_of(e) < 17) {
+      if (!is_contribution(e)) continue;
+      ++skipped;
+    }
+    kept.push_back(std::move(e));
+  }
+  std::stable_partition(kept.begin(), kept.end(), is_contribution);
+  REQUIRE(skipped == 2 * 4);  // agents 1 and 2, steps 13..16
+  net.held = std::move(kept);
+  net.frozen.erase(3);
+  net.Liveliness(1, 3, true);
+  net.Liveliness(2, 3, true);
+  net.Liveliness(deif::testing::kTarget, 3, true);
+  net.ReleaseHeld();
+  net.RunUntil(30);
+  // THEN it rejoins at step 17, and the contributions of 13..16 it held are counted as dropped
+  std::vector<StepIndex> resumed;
+  for (const auto& r : net.rows[3]) {
+    if (r.step > 3) resumed.push_back(r.step);
+  }
+  REQUIRE_FALSE(resumed.empty());
+  CHECK(resumed.front() == 17);
+  CHECK(resumed.back() == 30);
+  const auto& c = net.agents.at(3)->counters();
+  REQUIRE(c.by_reason.count("dropped: skipped_step") == 1);
+  CHECK(c.by_reason.at("dropped: skipped_step") == skipped);
+  CHECK(c.dropped == skipped);
+}
+
 namespace {
 
 // Starts `agent` (of run `run`, in a network of agents 1..3) and hands it the target's range
