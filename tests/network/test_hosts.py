@@ -35,8 +35,15 @@ def settled_steps_agree(by_agent, after):
     return agree
 
 
-def every_step_written(run, agents, steps):
-    return all([int(r["step"]) for r in rows(run, j)] == list(range(1, steps + 1)) for j in agents)
+def unwritten_steps(run, agents, steps):
+    """{agent: the first few steps of 1..steps it wrote no row for (or wrote out of order)}, for
+    the agents that did not write every step once, in order; empty when all did."""
+    missing = {}
+    for j in agents:
+        written = [int(r["step"]) for r in rows(run, j)]
+        if written != list(range(1, steps + 1)):
+            missing[j] = sorted(set(range(1, steps + 1)) - set(written))[:10] or f"{len(written)} rows"
+    return missing
 
 
 def test_lockstep_10_percent_loss(work, domain):
@@ -47,7 +54,8 @@ def test_lockstep_10_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, progress=False)
     assert res.ok, res.why_not_ok()
-    assert every_step_written(res.out_dir, range(1, 5), 200)
+    missing = unwritten_steps(res.out_dir, range(1, 5), 200)
+    assert not missing, f"steps without a row: {missing}"
     sim = oracle(res.out_dir)
     for j in range(1, 5):
         ref = {r["step"]: r for r in rows(sim, j)}
@@ -63,7 +71,8 @@ def test_realtime_10_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, overrides=REALTIME, progress=False)
     assert res.ok, res.why_not_ok()
-    assert every_step_written(res.out_dir, range(1, 5), 200)
+    missing = unwritten_steps(res.out_dir, range(1, 5), 200)
+    assert not missing, f"steps without a row: {missing}"
     for j in range(1, 5):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
             assert " lost (" not in f.read(), f"agent {j} excluded a live peer"
@@ -91,7 +100,8 @@ def test_partition_and_heal(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=250, hosts=3,
                        overrides=REALTIME, partitions=[launcher.Partition(80, 3.0, 3)], progress=False)
     assert res.ok, res.why_not_ok()
-    assert every_step_written(res.out_dir, range(1, 5), 250)
+    missing = unwritten_steps(res.out_dir, range(1, 5), 250)
+    assert not missing, f"steps without a row: {missing}"
     p = res.summary["partitions"][0]
     healed = p["healed_at_step"]
     assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
@@ -119,7 +129,8 @@ def test_tree_lockstep_10_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=120, hosts=3,
                        loss=0.10, overrides=TREE, progress=False)
     assert res.ok, res.why_not_ok()
-    assert every_step_written(res.out_dir, range(1, 10), 120)
+    missing = unwritten_steps(res.out_dir, range(1, 10), 120)
+    assert not missing, f"steps without a row: {missing}"
     sim = oracle(res.out_dir)
     for j in range(1, 10):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
@@ -141,7 +152,8 @@ def test_tree_partition_and_heal(work, domain):
                        progress=False)
     assert res.ok, res.why_not_ok()
     agents = range(1, 10)
-    assert every_step_written(res.out_dir, agents, 250)
+    missing = unwritten_steps(res.out_dir, agents, 250)
+    assert not missing, f"steps without a row: {missing}"
     p = res.summary["partitions"][0]
     healed = p["healed_at_step"]
     assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
@@ -196,17 +208,22 @@ def test_tree_realtime_15_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=n, domain=domain, steps=steps, hosts=3,
                        loss=0.15, overrides=REALTIME, progress=False)
     assert res.ok, res.why_not_ok()
-    assert every_step_written(res.out_dir, range(1, n + 1), steps)
+    missing = unwritten_steps(res.out_dir, range(1, n + 1), steps)
+    assert not missing, f"steps without a row: {missing}"
     complete = total = 0
     for j in range(1, n + 1):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
             assert "exchange: tree, fan-out 4" in f.read()
-        longest = run = 0
+    longest = {}
+    for j in range(1, n + 1):
+        longest[j] = run = 0
         for r in rows(res.out_dir, j)[20:]:
             run = run + 1 if int(r["alive"]) < n else 0
-            longest = max(longest, run)
+            longest[j] = max(longest[j], run)
             complete += r["complete"] == "1"
             total += 1
-        assert longest <= 10, f"agent {j} left a live peer out for {longest} steps in a row"
-    print("complete", complete / total, "agreement", res.summary["metrics"]["agreement_fraction"])
+    print("complete", complete / total, "agreement", res.summary["metrics"]["agreement_fraction"],
+          "longest run of steps with a live peer left out, by agent", longest)
+    out = {j: k for j, k in longest.items() if k > 10}
+    assert not out, f"agents that left a live peer out for more than 10 steps in a row: {out}"
     assert complete >= 0.8 * total
