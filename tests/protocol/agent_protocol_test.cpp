@@ -1193,6 +1193,39 @@ TEST_CASE("A restarted agent that appends to its rows never writes a step at or 
   CHECK(RowsAfterAStaleFirstRange(50).empty());
 }
 
+TEST_CASE("Ranges announced for steps an agent skips when it rejoins beyond the history are "
+          "counted as dropped",
+          "[protocol]") {
+  // GIVEN agent 1 of 3 in lock-step (history 50 steps), its step 1 open and waiting for its peers
+  const deif::Config config =
+      deif::ParseConfig("agents: {count: 3}\nnetwork: {step_timeout_s: 2, history_steps: 50}\n", "skip_test");
+  protocol::AgentProtocol::Options options;
+  options.run = protocol::RunTokenOf("skip");
+  protocol::AgentProtocol agent(config, 1, options);
+  StartWithFirstRange(agent, options.run);
+  protocol::SenderKey target{};
+  target[0] = 7;  // the writer of the first range
+  // WHEN the target, gone on without it, announces steps 60, 61 and 62 meanwhile
+  for (StepIndex k = 60; k <= 62; ++k) {
+    protocol::RangeMsg range;
+    range.run = options.run;
+    range.agent_id = 1;
+    range.step = k;
+    range.measured = false;
+    range.roll_call = {1, 2, 3};
+    agent.OnRange(range, target, 0.5);
+  }
+  REQUIRE(agent.counters().dropped == 0);
+  // ... and step 1 ends at its timeout
+  agent.OnTimer(2.5);
+  agent.TakeActions();
+  // THEN it rejoins at step 62, and the ranges of the two steps it skips are counted as dropped
+  const auto& c = agent.counters();
+  REQUIRE(c.by_reason.count("dropped: skipped_step") == 1);
+  CHECK(c.by_reason.at("dropped: skipped_step") == 2);
+  CHECK(c.dropped == 2);
+}
+
 namespace {
 
 // When an agent that never gets a range gives up (its exit code), given what it sees of the
