@@ -1080,7 +1080,8 @@ void AgentProtocol::Drop(const std::string& who, const std::string& reason) {
 
 AgentProtocol::EarlyIt AgentProtocol::DropEarly(EarlyIt first, EarlyIt last, const std::string& reason) {
   // Every contribution this agent received is fused, rejected or dropped, and counted: one it
-  // will never reach the step of is not lost silently (docs/PROTOCOL.md, "Bad input").
+  // will never reach the step of is not lost silently (docs/PROTOCOL.md, "Peer data is
+  // untrusted").
   for (auto it = first; it != last; ++it) {
     for (const auto& entry : it->second) Drop("agent " + std::to_string(entry.first), reason);
   }
