@@ -1019,33 +1019,47 @@ TEST_CASE("An agent reports its peers matched only once its range reader has mat
 
 namespace {
 
-// Agent 3 frozen from step 3 to step 20 (longer than the history of 8); on resume only
-// the newest history_steps samples of each writer are left for it (keep-last histories),
-// delivered with the peers' contributions before the target's ranges when
-// `contributions_first`, else the other way round. Returns agent 3's rows from the resume.
-std::vector<deif::AgentRow> ResumeAfterLongFreeze(bool contributions_first, long* too_far_ahead) {
-  ScriptedNetwork net(kThreeAgents);
+StepIndex StepOf(const Envelope& e) {
+  return std::visit([](const auto& m) -> StepIndex { return m.step; }, e.message);
+}
+
+bool IsContribution(const Envelope& e) { return std::holds_alternative<protocol::ContributionMsg>(e.message); }
+
+// Agent 3 of three frozen from step 3 to step 20, longer than the history of 8 steps: what
+// was sent to it meanwhile is held in `net.held`.
+void FreezeAgent3ThroughStep20(ScriptedNetwork& net) {
   net.Start();
   net.RunUntil(3);
   const auto frozen = net.Freeze(3);
   net.RunUntil(20, frozen);
-  const auto step_of = [](const Envelope& e) {
-    return std::visit([](const auto& m) -> StepIndex { return m.step; }, e.message);
-  };
-  std::deque<Envelope> kept;
-  for (Envelope& e : net.held) {
-    if (e.to == 3 && step_of(e) > 20 - 8) kept.push_back(std::move(e));
-  }
-  std::stable_partition(kept.begin(), kept.end(), [&](const Envelope& e) {
-    return std::holds_alternative<protocol::ContributionMsg>(e.message) == contributions_first;
-  });
-  net.held = std::move(kept);
+}
+
+// Agent 3 resumes: `backlog` (in its order) is what reaches it of what was held, its peers and
+// the target are alive again in its view, and the run goes on to its end (step 30).
+void ResumeAgent3(ScriptedNetwork& net, std::deque<Envelope> backlog) {
+  net.held = std::move(backlog);
   net.frozen.erase(3);
   net.Liveliness(1, 3, true);
   net.Liveliness(2, 3, true);
   net.Liveliness(deif::testing::kTarget, 3, true);
   net.ReleaseHeld();
-  net.RunUntil(30);  // the end of the run
+  net.RunUntil(30);
+}
+
+// Agent 3 frozen through step 20; on resume only the newest history_steps samples of each
+// writer are left for it (keep-last histories), delivered with the peers' contributions
+// before the target's ranges when `contributions_first`, else the other way round. Returns
+// agent 3's rows from the resume.
+std::vector<deif::AgentRow> ResumeAfterLongFreeze(bool contributions_first, long* too_far_ahead) {
+  ScriptedNetwork net(kThreeAgents);
+  FreezeAgent3ThroughStep20(net);
+  std::deque<Envelope> kept;
+  for (Envelope& e : net.held) {
+    if (e.to == 3 && StepOf(e) > 20 - 8) kept.push_back(std::move(e));
+  }
+  std::stable_partition(kept.begin(), kept.end(),
+                        [&](const Envelope& e) { return IsContribution(e) == contributions_first; });
+  ResumeAgent3(net, std::move(kept));
   const auto& c = net.agents.at(3)->counters().by_reason;
   *too_far_ahead = c.count("dropped: too_far_ahead") > 0 ? c.at("dropped: too_far_ahead") : 0;
   std::vector<deif::AgentRow> rows;
@@ -1083,37 +1097,22 @@ TEST_CASE("Contributions held for the steps an agent skips when it rejoins beyon
           "[protocol]") {
   // GIVEN agent 3 frozen from step 3 to step 20 (the history is 8 steps)
   ScriptedNetwork net(kThreeAgents);
-  net.Start();
-  net.RunUntil(3);
-  const auto frozen = net.Freeze(3);
-  net.RunUntil(20, frozen);
-  const auto step_of = [](const Envelope& e) {
-    return std::visit([](const auto& m) -> StepIndex { return m.step; }, e.message);
-  };
-  const auto is_contribution = [](const Envelope& e) {
-    return std::holds_alternative<protocol::ContributionMsg>(e.message);
-  };
+  FreezeAgent3ThroughStep20(net);
   // WHEN of its backlog only the peers' contributions of steps 13..20 reach it, then the
   // target's ranges of steps 17..20 (those of 13..16 are lost)
   std::deque<Envelope> kept;
   long skipped = 0;  // contributions of the steps it will skip
   for (Envelope& e : net.held) {
-    if (e.to != 3 || step_of(e) <= 12) continue;
-    if (step_of(e) < 17) {
-      if (!is_contribution(e)) continue;
+    if (e.to != 3 || StepOf(e) <= 12) continue;
+    if (StepOf(e) < 17) {
+      if (!IsContribution(e)) continue;
       ++skipped;
     }
     kept.push_back(std::move(e));
   }
-  std::stable_partition(kept.begin(), kept.end(), is_contribution);
+  std::stable_partition(kept.begin(), kept.end(), [](const Envelope& e) { return IsContribution(e); });
   REQUIRE(skipped == 2 * 4);  // agents 1 and 2, steps 13..16
-  net.held = std::move(kept);
-  net.frozen.erase(3);
-  net.Liveliness(1, 3, true);
-  net.Liveliness(2, 3, true);
-  net.Liveliness(deif::testing::kTarget, 3, true);
-  net.ReleaseHeld();
-  net.RunUntil(30);
+  ResumeAgent3(net, std::move(kept));
   // THEN it rejoins at step 17, and the contributions of 13..16 it held are counted as dropped
   std::vector<StepIndex> resumed;
   for (const auto& r : net.rows[3]) {
