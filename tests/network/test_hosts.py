@@ -204,9 +204,10 @@ def test_tree_realtime_15_percent_loss(work, domain):
     death: the lapse is held until several in a row went missing, and a peer taken for lost
     all the same is a member again once it contributes to a later step (docs/PROTOCOL.md,
     "Renewals that are rare"). At least half the agent-steps fuse every member by the
-    deadline: the repairs of the lost samples work in real time (without them hardly a step
-    would: a step needs every one of the 20 contributions across about 19 lossy edges up the
-    tree, 0.85^19 = 4 %). The fraction itself is a figure of the machine's load, not a
+    deadline: the repairs of the lost samples work in real time (without them few steps
+    would: a step needs a batch through each of the 19 edges up the tree and the edges down,
+    most of them between hosts, each losing 15 %: 0.85^13 to 0.85^19 is 12 % to 4 % for the
+    way up alone). The fraction itself is a figure of the machine's load, not a
     property: 98-100 % on a quiet 2-core host, 66-85 % with a build and busy loops beside it
     (docs/BENCHMARKS.md, "Repairs in real time")."""
     n, steps = 20, 150
