@@ -6,6 +6,7 @@ bit, and every test compares the processes with the in-process simulation (deif_
 the same config: the same protocol over a simulated network.
 """
 import glob
+import json
 import math
 import os
 import re
@@ -60,6 +61,13 @@ def steps_of(run, j):
 def counted(summary, agent):
     c = summary["counters"][f"agent_{agent}"]
     return c["rejected"] + c["dropped"]
+
+
+def counts_of(summary, agent):
+    """An agent's counters in one line whole, for a failure's message (pytest cuts a dict)."""
+    c = summary["counters"][f"agent_{agent}"]
+    return (f"agent {agent}: rejected {c['rejected']}, dropped {c['dropped']}, adoptions "
+            f"{c.get('adoptions')}, merges {c.get('merges')}, by reason {json.dumps(c['by_reason'], sort_keys=True)}")
 
 
 LOST = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d+)\].* agent (\d+) lost")
@@ -563,7 +571,7 @@ def test_hostile_contributions(work, domain):
     sent = int(re.search(r"sent (\d+)", out).group(1))
     assert res.ok, res.why_not_ok()
     for j in range(1, 5):
-        assert counted(res.summary, j) == sent, res.summary["counters"][f"agent_{j}"]
+        assert counted(res.summary, j) == sent, f"{sent} sent; {counts_of(res.summary, j)}"
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
     assert worst == 0.0
 
@@ -586,7 +594,7 @@ def test_hostile_ranges(work, domain):
     sent = int(re.search(r"sent (\d+)", out).group(1))
     assert res.ok, res.why_not_ok()
     for j in range(1, 5):
-        assert counted(res.summary, j) == sent // 4
+        assert counted(res.summary, j) == sent // 4, f"{sent // 4} sent to each; {counts_of(res.summary, j)}"
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
     assert worst == 0.0
 
@@ -889,7 +897,7 @@ def test_tree_equality(work, domain):
     worst, n = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 8))
     assert n == 1400 and worst == 0.0, f"largest difference from the oracle {worst:.3g}"
     for j in range(1, 8):
-        assert counted(res.summary, j) == 0, res.summary["counters"][f"agent_{j}"]
+        assert counted(res.summary, j) == 0, counts_of(res.summary, j)
         # Every agent of the run was up: the tree they started in never moved.
         assert relay_log_lines(res.out_dir, j) == []
         # Delivery delays by kind, counted once the first row is written: one range a step
