@@ -496,10 +496,7 @@ void AgentProtocol::Advance(double now_s) {
       Finish(kExitOk, "run over after step " + std::to_string(written_));
       break;
     }
-    for (auto it = pending_ranges_.begin(); it != pending_ranges_.lower_bound(next);) {
-      Drop("the target", "skipped_step");  // a step this agent skipped (a join, a rejoin)
-      it = pending_ranges_.erase(it);
-    }
+    DropPendingRanges(pending_ranges_.lower_bound(next));  // steps it skipped (a join, a rejoin)
     const StepIndex gap_limit = next + config_.network.history_steps;
     if (!ever_opened_ || (!pending_ranges_.empty() && pending_ranges_.begin()->first > gap_limit)) {
       if (pending_ranges_.empty()) break;
@@ -508,9 +505,7 @@ void AgentProtocol::Advance(double now_s) {
       const auto newest = std::prev(pending_ranges_.end());
       const StepIndex k = newest->first;
       const PendingRange range = newest->second;
-      for (std::size_t skipped = 1; skipped < pending_ranges_.size(); ++skipped) {
-        Drop("the target", "skipped_step");  // the older steps announced: skipped
-      }
+      DropPendingRanges(newest);  // the older steps announced: skipped
       pending_ranges_.clear();
       if (ever_opened_) {
         Log(LogLevel::kWarn, "missed steps " + std::to_string(next) + ".." + std::to_string(k - 1) +
@@ -1086,6 +1081,11 @@ AgentProtocol::EarlyIt AgentProtocol::DropEarly(EarlyIt first, EarlyIt last, con
     for (const auto& entry : it->second) Drop("agent " + std::to_string(entry.first), reason);
   }
   return early_.erase(first, last);
+}
+
+void AgentProtocol::DropPendingRanges(std::map<StepIndex, PendingRange>::iterator last) {
+  for (auto it = pending_ranges_.begin(); it != last; ++it) Drop("the target", "skipped_step");
+  pending_ranges_.erase(pending_ranges_.begin(), last);
 }
 
 void AgentProtocol::Log(LogLevel level, std::string text) {

@@ -264,6 +264,8 @@ class AgentProtocol {
   // Drops (and counts, under `reason`) the held contributions of early_'s steps in [first, last).
   using EarlyIt = std::map<StepIndex, std::map<AgentId, Held>>::iterator;
   EarlyIt DropEarly(EarlyIt first, EarlyIt last, const std::string& reason);
+  // Drops (and counts as skipped_step) the pending ranges before `last`.
+  void DropPendingRanges(std::map<StepIndex, PendingRange>::iterator last);
   void Log(LogLevel level, std::string text);
   void LogOnce(LogLevel level, const std::string& key, std::string text);
   void Publish(const StateMsg& msg);
