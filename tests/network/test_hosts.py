@@ -35,15 +35,15 @@ def settled_steps_agree(by_agent, after):
     return agree
 
 
-def unwritten_steps(run, agents, steps):
-    """{agent: the first few steps of 1..steps it wrote no row for (or wrote out of order)}, for
-    the agents that did not write every step once, in order; empty when all did."""
+def assert_every_step_written(run, agents, steps):
+    """Every agent wrote each step of 1..steps once, in order; a failure names the agents that
+    did not and the first few steps each missed (or its row count, if it wrote them out of order)."""
     missing = {}
     for j in agents:
         written = [int(r["step"]) for r in rows(run, j)]
         if written != list(range(1, steps + 1)):
             missing[j] = sorted(set(range(1, steps + 1)) - set(written))[:10] or f"{len(written)} rows"
-    return missing
+    assert not missing, f"steps without a row: {missing}"
 
 
 def test_lockstep_10_percent_loss(work, domain):
@@ -54,8 +54,7 @@ def test_lockstep_10_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, progress=False)
     assert res.ok, res.why_not_ok()
-    missing = unwritten_steps(res.out_dir, range(1, 5), 200)
-    assert not missing, f"steps without a row: {missing}"
+    assert_every_step_written(res.out_dir, range(1, 5), 200)
     sim = oracle(res.out_dir)
     for j in range(1, 5):
         ref = {r["step"]: r for r in rows(sim, j)}
@@ -71,8 +70,7 @@ def test_realtime_10_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=200, hosts=3,
                        loss=0.10, overrides=REALTIME, progress=False)
     assert res.ok, res.why_not_ok()
-    missing = unwritten_steps(res.out_dir, range(1, 5), 200)
-    assert not missing, f"steps without a row: {missing}"
+    assert_every_step_written(res.out_dir, range(1, 5), 200)
     for j in range(1, 5):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
             assert " lost (" not in f.read(), f"agent {j} excluded a live peer"
@@ -100,8 +98,7 @@ def test_partition_and_heal(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), domain=domain, steps=250, hosts=3,
                        overrides=REALTIME, partitions=[launcher.Partition(80, 3.0, 3)], progress=False)
     assert res.ok, res.why_not_ok()
-    missing = unwritten_steps(res.out_dir, range(1, 5), 250)
-    assert not missing, f"steps without a row: {missing}"
+    assert_every_step_written(res.out_dir, range(1, 5), 250)
     p = res.summary["partitions"][0]
     healed = p["healed_at_step"]
     assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
@@ -129,8 +126,7 @@ def test_tree_lockstep_10_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=120, hosts=3,
                        loss=0.10, overrides=TREE, progress=False)
     assert res.ok, res.why_not_ok()
-    missing = unwritten_steps(res.out_dir, range(1, 10), 120)
-    assert not missing, f"steps without a row: {missing}"
+    assert_every_step_written(res.out_dir, range(1, 10), 120)
     sim = oracle(res.out_dir)
     for j in range(1, 10):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
@@ -152,8 +148,7 @@ def test_tree_partition_and_heal(work, domain):
                        progress=False)
     assert res.ok, res.why_not_ok()
     agents = range(1, 10)
-    missing = unwritten_steps(res.out_dir, agents, 250)
-    assert not missing, f"steps without a row: {missing}"
+    assert_every_step_written(res.out_dir, agents, 250)
     p = res.summary["partitions"][0]
     healed = p["healed_at_step"]
     assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
@@ -214,8 +209,7 @@ def test_tree_realtime_15_percent_loss(work, domain):
     res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=n, domain=domain, steps=steps, hosts=3,
                        loss=0.15, overrides=REALTIME, progress=False)
     assert res.ok, res.why_not_ok()
-    missing = unwritten_steps(res.out_dir, range(1, n + 1), steps)
-    assert not missing, f"steps without a row: {missing}"
+    assert_every_step_written(res.out_dir, range(1, n + 1), steps)
     complete = total = 0
     for j in range(1, n + 1):
         with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
