@@ -213,33 +213,57 @@ def run_realtime_scale(ns, domains, work_dir, steps):
                 continue
         complete = total = 0
         written = []
+        by_agent = {}
         for j in range(1, n + 1):
             rows = _rows(res.out_dir, j)
+            by_agent[j] = rows
             written.append(len(rows))
             total += len(rows)
             complete += sum(r["complete"] == "1" for r in rows)
+        steps_complete = complete_steps(by_agent, steps)
         m = res.summary.get("metrics", {})
         out.append({"n": n, "steps": steps, "ok": res.ok,
                     "delivery_ms": launcher.median_delivery_ms(res.summary.get("counters", {})),
                     "rows_written_fraction": sum(written) / (n * steps),
                     "complete_fraction": complete / total if total else None,
+                    "steps_complete_fraction": len(steps_complete) / steps,
+                    "first_incomplete_steps": sorted(set(range(1, steps + 1)) - steps_complete)[:10],
                     "agreement_fraction": m.get("agreement_fraction"),
                     "final_agents": m.get("final_agents"), "rmse_m": m.get("rmse_m")})
     return out
 
 
+def complete_steps(rows_by_agent, steps):
+    """The steps 1..steps in which every agent wrote a row that fused every member of the
+    step's roll call by its deadline (`complete` = 1): the figure of a network whose every
+    sensor is up to date, stricter than the share of agent-steps. A step an agent wrote no
+    row for is not complete."""
+    full = set(range(1, steps + 1))
+    for rows in rows_by_agent.values():
+        full &= {int(r["step"]) for r in rows if r["complete"] == "1"}
+    return full
+
+
+def _steps_cell(r):
+    if r.get("steps_complete_fraction") is None:
+        return "-"
+    first = r.get("first_incomplete_steps") or []
+    return f"{r['steps_complete_fraction']:.1%}" + (f" ({' '.join(map(str, first))})" if first else "")
+
+
 def realtime_table(rows):
     lines = ["**Real time at 10 Hz on this host** (default config, N agents)", "",
              "| N | finished | rows written | agent-steps with every member fused by the deadline "
+             "| steps in which every agent did (first that did not) "
              "| agree <= 1e-6 | agents at the end | RMSE [m] | delivery p50 / p99 [ms], median agent |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['n']} | FAILED: {r['error'].splitlines()[-1]} | | | | | | |")
+            lines.append(f"| {r['n']} | FAILED: {r['error'].splitlines()[-1]} | | | | | | | |")
             continue
         f = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
         lines.append(f"| {r['n']} | {'ok' if r['ok'] else 'NO'} | {r['rows_written_fraction']:.1%} | "
-                     f"{f(r['complete_fraction'], '.1%')} | {f(r['agreement_fraction'], '.1%')} | "
+                     f"{f(r['complete_fraction'], '.1%')} | {_steps_cell(r)} | {f(r['agreement_fraction'], '.1%')} | "
                      f"{r['final_agents']} | {f(r['rmse_m'], '.4f')} | "
                      + ", ".join(f"{k} {v[0]:.1f} / {v[1]:.1f}" for k, v in sorted(r.get("delivery_ms", {}).items()))
                      + " |")

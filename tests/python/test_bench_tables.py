@@ -173,6 +173,19 @@ def test_realtime_table_takes_the_median_agent_delivery_delays():
     assert "| 0.0100 | range 2.0 / 9.0, relay_down 7.0 / 20.0 |" in bench_network.realtime_table([row])
 
 
+def test_a_step_is_complete_only_if_every_agent_wrote_it_complete():
+    from deif import bench_network
+    rows = {1: [{"step": "1", "complete": "1"}, {"step": "2", "complete": "1"}, {"step": "3", "complete": "1"}],
+            # step 2 written incomplete, step 3 not written at all
+            2: [{"step": "1", "complete": "1"}, {"step": "2", "complete": "0"}]}
+    assert bench_network.complete_steps(rows, 3) == {1}
+    assert bench_network.complete_steps({1: rows[1]}, 3) == {1, 2, 3}
+    row = {"n": 2, "steps": 3, "ok": True, "rows_written_fraction": 5 / 6, "complete_fraction": 0.8,
+           "steps_complete_fraction": 1 / 3, "first_incomplete_steps": [2, 3],
+           "agreement_fraction": 1.0, "final_agents": 2, "rmse_m": 0.01}
+    assert "| 80.0% | 33.3% (2 3) | 100.0% |" in bench_network.realtime_table([row])
+
+
 def test_disagreement_runs_are_maximal_runs_of_steps_above_1e_6():
     from deif import bench_network
     steps = [{"step": str(k), "max_disagreement": str(v)}
