@@ -916,6 +916,27 @@ def evaluate_goals(res):
 
 
 # ---------------------------------------------------------------------------------------
+def keep_failed_runs(work_dir, dest):
+    """Moves every run folder under work_dir whose summary.json does not say ok (or that has
+    none: the launcher never finished it) to dest, so that a run that failed can be read
+    afterwards; returns the paths kept. A run folder is one with a config.yaml."""
+    kept = []
+    for folder, _dirs, files in sorted(os.walk(work_dir)):
+        if "config.yaml" not in files:
+            continue
+        try:
+            with open(os.path.join(folder, "summary.json")) as f:
+                ok = json.load(f).get("ok") is True
+        except (OSError, ValueError):
+            ok = False
+        if not ok:
+            target = os.path.join(dest, os.path.relpath(folder, work_dir).replace(os.sep, "-"))
+            os.makedirs(dest, exist_ok=True)
+            shutil.move(folder, target)
+            kept.append(target)
+    return kept
+
+
 def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
     """Runs the sections; writes bench/results/<stamp>.json and .md; returns (results, the
     tables as Markdown, the JSON path)."""
@@ -1025,6 +1046,10 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                                              work_dir, observer_exe)
     finally:
         if not keep_runs:
+            kept = keep_failed_runs(work_dir, os.path.join(RESULTS_DIR, f"{stamp}-failed"))
+            if kept:
+                log(f"runs that did not finish well kept in {os.path.dirname(kept[0])}: "
+                    + ", ".join(os.path.basename(k) for k in kept))
             shutil.rmtree(work_dir, ignore_errors=True)
         else:
             log(f"run folders kept in {work_dir}")

@@ -186,6 +186,27 @@ def test_a_step_is_complete_only_if_every_agent_wrote_it_complete():
     assert "| 80.0% | 33.3% (2 3) | 100.0% |" in bench_network.realtime_table([row])
 
 
+def test_runs_that_did_not_finish_well_are_kept(work_dir):
+    import json
+    def run_folder(name, summary):
+        d = os.path.join(work_dir, "runs", name)
+        os.makedirs(os.path.join(d, "logs"))
+        open(os.path.join(d, "config.yaml"), "w").close()
+        if summary is not None:
+            with open(os.path.join(d, "summary.json"), "w") as f:
+                json.dump(summary, f)
+    run_folder("good", {"ok": True})
+    run_folder("failed", {"ok": False})
+    run_folder("unfinished", None)  # the launcher never wrote its summary
+    dest = os.path.join(work_dir, "kept")
+    kept = bench.keep_failed_runs(os.path.join(work_dir, "runs"), dest)
+    assert sorted(os.path.basename(k) for k in kept) == ["failed", "unfinished"]
+    assert sorted(os.listdir(dest)) == ["failed", "unfinished"]
+    assert os.path.isdir(os.path.join(dest, "failed", "logs"))
+    assert os.listdir(os.path.join(work_dir, "runs")) == ["good"]
+    assert bench.keep_failed_runs(os.path.join(work_dir, "runs"), dest) == []
+
+
 def test_disagreement_runs_are_maximal_runs_of_steps_above_1e_6():
     from deif import bench_network
     steps = [{"step": str(k), "max_disagreement": str(v)}
