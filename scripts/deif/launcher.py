@@ -241,6 +241,11 @@ def default_out_dir(config_path):
                         f"{stem}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}")
 
 
+# The agents' CPU scheduling policies deif-run offers (docs/RUNNING.md, "CPU scheduling"):
+# SCHED_BATCH, or the launcher's own (normally SCHED_OTHER).
+AGENT_SCHED = ("batch", "normal")
+
+
 class Launcher:
     live_port = None  # deif-run --live [PORT]: run deif_observer beside the run (docs/LIVE.md)
     live_url = None   # the page's URL, once the observer printed it
@@ -248,9 +253,12 @@ class Launcher:
     def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
                  overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
                  progress=True, log=sys.stderr, timeout_s=None, discovery_server=False,
-                 secure=False, certs_dir=None, staggered=None):
+                 secure=False, certs_dir=None, staggered=None, agent_sched="batch"):
         """staggered: start the processes one after another (True) or all at once (False);
-        None: one after another when the run is secure (start())."""
+        None: one after another when the run is secure (start()). agent_sched: the agents' CPU
+        scheduling policy, "batch" (SCHED_BATCH: a woken agent does not preempt the process
+        that runs, so the target, the world's clock, is not starved by N agents;
+        docs/RUNNING.md, "CPU scheduling") or "normal"."""
         self.log = log
         self.progress = progress and hasattr(log, "isatty") and log.isatty()
         if hosts < 1:
@@ -264,6 +272,9 @@ class Launcher:
             if p.host > hosts:
                 raise LaunchError(f"--partition {p.step}:{p.seconds:g}:{p.host}: there are only "
                                   f"{hosts} hosts")
+        if agent_sched not in AGENT_SCHED:
+            raise LaunchError(f"--agent-sched {agent_sched}: must be one of {', '.join(AGENT_SCHED)}")
+        self.agent_sched = agent_sched
         if hosts > 1:
             try:
                 hosts_mod.require_root()
@@ -427,11 +438,20 @@ class Launcher:
         agent = int(name.split("_")[1])
         return 2 + (agent - 1) % (self.hosts_count - 1)
 
-    def _spawn(self, proc, control=False):
-        # Dies with the launcher, whatever kills it (PR_SET_PDEATHSIG through setpriv).
-        argv = ["setpriv", "--pdeathsig", "KILL", "--", *proc.argv]
+    def command(self, proc):
+        """The command line that starts proc: it dies with the launcher, whatever kills it
+        (PR_SET_PDEATHSIG through setpriv); an agent runs under its scheduling policy (chrt,
+        inherited by every thread Fast DDS makes); inside its host's namespace."""
+        argv = list(proc.argv)
+        if proc.name.startswith("agent_") and self.agent_sched == "batch":
+            argv = ["chrt", "--batch", "0", *argv]
+        argv = ["setpriv", "--pdeathsig", "KILL", "--", *argv]
         if self.hosts is not None:
             argv = self.hosts.command(proc.host, argv)
+        return argv
+
+    def _spawn(self, proc, control=False):
+        argv = self.command(proc)
         logf = open(proc.log_path, "ab")
         proc.started_unix_s = time.time()
         proc.popen = subprocess.Popen(
@@ -780,6 +800,7 @@ class Launcher:
                          else {"enabled": False}),
             "partitions": [p.__dict__ for p in self.partitions],
             "faults": [f.__dict__ for f in self.faults],
+            "agent_sched": self.agent_sched,
             "processes": procs,
             "wall_time_s": time.time() - self.started,
             "live_url": self.live_url,

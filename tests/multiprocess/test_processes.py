@@ -531,6 +531,28 @@ def test_duplicate_id(work, domain):
     assert steps_of(res.out_dir, 2)[-1] == 3000
 
 
+def test_agents_run_as_batch(work, domain):
+    """deif-run starts every agent under SCHED_BATCH (docs/RUNNING.md, "CPU scheduling"), and
+    every thread of the agent has it, Fast DDS's included: a woken agent must not preempt the
+    target. The target keeps the launcher's policy."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=2, steps=3000,
+                            domain=domain, progress=False)
+    try:
+        lau.start()
+        lau.wait_for_step(5)
+        policies = {}
+        for name in ("agent_1", "agent_2", "target"):
+            pid = lau.procs[name].popen.pid
+            policies[name] = {os.sched_getscheduler(int(tid)) for tid in os.listdir(f"/proc/{pid}/task")}
+            assert len(os.listdir(f"/proc/{pid}/task")) > 3, name  # Fast DDS's threads are up
+    finally:
+        lau.terminate_all()
+        lau.finish()
+    assert policies["agent_1"] == {os.SCHED_BATCH}, policies
+    assert policies["agent_2"] == {os.SCHED_BATCH}, policies
+    assert policies["target"] == {os.sched_getscheduler(0)}, policies
+
+
 def hostile(work, domain, attack, config=SLOW_CIRCLE, agents=4, steps=1500, faults=(), at_step=30,
             seconds=None, overrides=(), live=None, nice=0):
     """A run with a hostile peer in its partition; returns (result, hostile's stdout)."""

@@ -149,6 +149,24 @@ def test_the_start_order_can_be_chosen(deif_sim, work_dir):
     assert plain.staggered
 
 
+def test_agents_start_under_their_scheduling_policy(deif_sim, work_dir):
+    """SCHED_BATCH by default (chrt, inside setpriv so the process still dies with the
+    launcher); the target never; none with --agent-sched normal; anything else is refused
+    before anything starts."""
+    lau = launcher.Launcher(DEFAULT, os.path.join(work_dir, "a"), agents=2)
+    agent = launcher.Proc("agent_1", ["deif_agent", "--id", "1"], 1)
+    target = launcher.Proc("target", ["deif_target"], 1)
+    assert lau.command(agent) == ["setpriv", "--pdeathsig", "KILL", "--", "chrt", "--batch", "0",
+                                  "deif_agent", "--id", "1"]
+    assert lau.command(target) == ["setpriv", "--pdeathsig", "KILL", "--", "deif_target"]
+    normal = launcher.Launcher(DEFAULT, os.path.join(work_dir, "b"), agents=2, agent_sched="normal")
+    assert normal.command(agent) == ["setpriv", "--pdeathsig", "KILL", "--", "deif_agent", "--id", "1"]
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(DEFAULT, os.path.join(work_dir, "c"), agents=2, agent_sched="fifo")
+    assert str(e.value) == "--agent-sched fifo: must be one of batch, normal"
+    assert not os.path.exists(os.path.join(work_dir, "c"))
+
+
 def _touch(d, name):
     with open(os.path.join(d, name), "wb") as f:
         f.write(b"\0" * 4096)
