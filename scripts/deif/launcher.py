@@ -474,10 +474,7 @@ class Launcher:
                  log_path=os.path.join(self.out_dir, "logs", "observer.log"))
         p.expected_death = True  # stopped by the launcher at the end
         logf = open(p.log_path, "ab")
-        argv = ["setpriv", "--pdeathsig", "KILL", "--", *p.argv]
-        if self.hosts is not None:
-            argv = self.hosts.command(p.host, argv)
-        p.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=logf, stdin=subprocess.DEVNULL)
+        p.popen = subprocess.Popen(self.command(p), stdout=subprocess.PIPE, stderr=logf, stdin=subprocess.DEVNULL)
         logf.close()
         self.procs[p.name] = p
         line = p.popen.stdout.readline().decode(errors="replace").strip()
