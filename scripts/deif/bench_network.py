@@ -199,17 +199,19 @@ def make_table(net):
 def run_realtime_scale(ns, domains, work_dir, steps):
     """Real time at 10 Hz with N agents on this host (default config): in how many
     agent-steps every member's contribution was fused by the deadline (the `complete`
-    column), the deadline misses, and the rows written."""
+    column), the deadline misses, and the rows written. The largest N runs a second time
+    with the agents under SCHED_OTHER, the baseline of deif-run's SCHED_BATCH measured side
+    by side (docs/RUNNING.md, "CPU scheduling")."""
     out = []
-    for n in ns:
-        d = os.path.join(work_dir, f"rt-n{n}")
+    for n, sched in [(n, "batch") for n in ns] + [(max(ns), "normal")]:
+        d = os.path.join(work_dir, f"rt-n{n}-{sched}")
         with open(os.devnull, "w") as quiet:
             try:
                 res = launcher.run(DEFAULT_CONFIG, d, agents=n, steps=steps, domain=domains.take(),
                                    overrides=REALTIME, progress=False, log=quiet,
-                                   timeout_s=steps * PERIOD_S + 180)
+                                   timeout_s=steps * PERIOD_S + 180, agent_sched=sched)
             except launcher.LaunchError as e:
-                out.append({"n": n, "error": str(e)})
+                out.append({"n": n, "agent_sched": sched, "error": str(e)})
                 continue
         complete = total = 0
         written = []
@@ -222,7 +224,7 @@ def run_realtime_scale(ns, domains, work_dir, steps):
             complete += sum(r["complete"] == "1" for r in rows)
         steps_complete = complete_steps(by_agent, steps)
         m = res.summary.get("metrics", {})
-        out.append({"n": n, "steps": steps, "ok": res.ok,
+        out.append({"n": n, "agent_sched": sched, "steps": steps, "ok": res.ok,
                     "delivery_ms": launcher.median_delivery_ms(res.summary.get("counters", {})),
                     "rows_written_fraction": sum(written) / (n * steps),
                     "complete_fraction": complete / total if total else None,
@@ -251,18 +253,23 @@ def _steps_cell(r):
     return f"{r['steps_complete_fraction']:.1%}" + (f" ({' '.join(map(str, first))})" if first else "")
 
 
+def _n_cell(r):
+    sched = r.get("agent_sched")
+    return f"{r['n']} ({'SCHED_BATCH' if sched == 'batch' else 'SCHED_OTHER'})" if sched else str(r["n"])
+
+
 def realtime_table(rows):
     lines = ["**Real time at 10 Hz on this host** (default config, N agents)", "",
-             "| N | finished | rows written | agent-steps with every member fused by the deadline "
+             "| N (agents' CPU policy) | finished | rows written | agent-steps with every member fused by the deadline "
              "| steps in which every agent did (first that did not) "
              "| agree <= 1e-6 | agents at the end | RMSE [m] | delivery p50 / p99 [ms], median agent |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['n']} | FAILED: {r['error'].splitlines()[-1]} | | | | | | | |")
+            lines.append(f"| {_n_cell(r)} | FAILED: {r['error'].splitlines()[-1]} | | | | | | | |")
             continue
         f = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
-        lines.append(f"| {r['n']} | {'ok' if r['ok'] else 'NO'} | {r['rows_written_fraction']:.1%} | "
+        lines.append(f"| {_n_cell(r)} | {'ok' if r['ok'] else 'NO'} | {r['rows_written_fraction']:.1%} | "
                      f"{f(r['complete_fraction'], '.1%')} | {_steps_cell(r)} | {f(r['agreement_fraction'], '.1%')} | "
                      f"{r['final_agents']} | {f(r['rmse_m'], '.4f')} | "
                      + ", ".join(f"{k} {v[0]:.1f} / {v[1]:.1f}" for k, v in sorted(r.get("delivery_ms", {}).items()))

@@ -183,7 +183,10 @@ def test_a_step_is_complete_only_if_every_agent_wrote_it_complete():
     row = {"n": 2, "steps": 3, "ok": True, "rows_written_fraction": 5 / 6, "complete_fraction": 0.8,
            "steps_complete_fraction": 1 / 3, "first_incomplete_steps": [2, 3],
            "agreement_fraction": 1.0, "final_agents": 2, "rmse_m": 0.01}
-    assert "| 80.0% | 33.3% (2 3) | 100.0% |" in bench_network.realtime_table([row])
+    assert "| 2 | ok | 83.3% | 80.0% | 33.3% (2 3) | 100.0% |" in bench_network.realtime_table([row])
+    # The agents' CPU policy names the row: the same N runs under both (run_realtime_scale)
+    table = bench_network.realtime_table([dict(row, agent_sched="batch"), dict(row, agent_sched="normal")])
+    assert "| 2 (SCHED_BATCH) | ok |" in table and "| 2 (SCHED_OTHER) | ok |" in table
 
 
 def test_runs_that_did_not_finish_well_are_kept(work_dir):
