@@ -298,7 +298,10 @@ def run_alltoall(exe, n, rounds, domain, timeout_s, mode="all", size=0):
     extra = {"relay": ["--relay-group", str(size)], "tree": ["--tree", str(size)]}.get(mode, [])
     argv = lambda j: [exe, "--id", str(j), "--peers", str(n), "--rounds", str(rounds),  # noqa: E731
                       "--warmup", str(warmup), "--domain", str(domain), "--timeout", str(timeout_s)] + extra
-    procs = [subprocess.Popen(argv(j), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Under the policy deif-run gives the agents, so that the lock-step is compared with a
+    # floor measured alike (docs/BENCHMARKS.md, "Agents under SCHED_BATCH").
+    procs = [subprocess.Popen(["chrt", "--batch", "0", *argv(j)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
              for j in range(1, n + 1)]
     outs = []
     try:
