@@ -300,7 +300,7 @@ def run_alltoall(exe, n, rounds, domain, timeout_s, mode="all", size=0):
                       "--warmup", str(warmup), "--domain", str(domain), "--timeout", str(timeout_s)] + extra
     # Under the policy deif-run gives the agents, so that the lock-step is compared with a
     # floor measured alike (docs/BENCHMARKS.md, "Agents under SCHED_BATCH").
-    procs = [subprocess.Popen(["chrt", "--batch", "0", *argv(j)], stdout=subprocess.PIPE,
+    procs = [subprocess.Popen(launcher.sched_prefix("batch") + argv(j), stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
              for j in range(1, n + 1)]
     outs = []

@@ -246,6 +246,12 @@ def default_out_dir(config_path):
 AGENT_SCHED = ("batch", "normal")
 
 
+def sched_prefix(policy):
+    """The command prefix that starts a process under an AGENT_SCHED policy (chrt; every
+    thread the process makes inherits it)."""
+    return ["chrt", "--batch", "0"] if policy == "batch" else []
+
+
 class Launcher:
     live_port = None  # deif-run --live [PORT]: run deif_observer beside the run (docs/LIVE.md)
     live_url = None   # the page's URL, once the observer printed it
@@ -443,8 +449,8 @@ class Launcher:
         (PR_SET_PDEATHSIG through setpriv); an agent runs under its scheduling policy (chrt,
         inherited by every thread Fast DDS makes); inside its host's namespace."""
         argv = list(proc.argv)
-        if proc.name.startswith("agent_") and self.agent_sched == "batch":
-            argv = ["chrt", "--batch", "0", *argv]
+        if proc.name.startswith("agent_"):
+            argv = sched_prefix(self.agent_sched) + argv
         argv = ["setpriv", "--pdeathsig", "KILL", "--", *argv]
         if self.hosts is not None:
             argv = self.hosts.command(proc.host, argv)
