@@ -104,6 +104,7 @@ class Proc:
     exit_status: int = None
     restarts: int = 0
     started_unix_s: float = None  # when it was (last) started
+    log_offset: int = 0  # the size of its log when it was (last) started
 
 
 @dataclass
@@ -348,6 +349,9 @@ class Launcher:
         # comes up (docs/SECURITY.md, "Start-up").
         self.start_timeout_raised = None
         secure_run = bool(resolved["network"]["security"]["enabled"])
+        # Whether the agents start under SCHED_OTHER and get agent_sched at the first step.
+        self._sched_deferred = secure_run and self.agent_sched != "normal"
+        self._sched_given = False
         self.staggered = secure_run if staggered is None else bool(staggered)
         if secure_run:
             least = 6.0 * self.n
@@ -450,15 +454,23 @@ class Launcher:
         inherited by every thread Fast DDS makes); inside its host's namespace."""
         argv = list(proc.argv)
         if proc.name.startswith("agent_"):
-            argv = sched_prefix(self.agent_sched) + argv
+            argv = sched_prefix(self._start_sched()) + argv
         argv = ["setpriv", "--pdeathsig", "KILL", "--", *argv]
         if self.hosts is not None:
             argv = self.hosts.command(proc.host, argv)
         return argv
 
+    def _start_sched(self):
+        """The policy an agent starts under. A secure run's agents start under SCHED_OTHER and
+        are given their policy at the run's first step (service(); one restarted later, once
+        it is up): with the agents under SCHED_BATCH the handshakes of a secure start stalled
+        again and again (docs/RUNNING.md, "CPU scheduling")."""
+        return "normal" if self._sched_deferred else self.agent_sched
+
     def _spawn(self, proc, control=False):
         argv = self.command(proc)
         logf = open(proc.log_path, "ab")
+        proc.log_offset = logf.tell()
         proc.started_unix_s = time.time()
         proc.popen = subprocess.Popen(
             argv, stdout=subprocess.PIPE if control else logf, stderr=logf,
@@ -466,6 +478,23 @@ class Launcher:
         logf.close()
         if control:
             threading.Thread(target=self._read_holds, args=(proc.popen,), daemon=True).start()
+        if proc.name.startswith("agent_") and self._sched_given:
+            threading.Thread(target=self._sched_once_up, args=(proc, proc.popen), daemon=True).start()
+
+    def _give_sched(self, popen):
+        """Gives every thread of the running agent `popen` the agents' policy (chrt
+        --all-tasks); threads made later inherit it from the thread that makes them. Twice,
+        for a thread made while the first pass ran."""
+        for _ in range(2):
+            if popen.poll() is None:
+                subprocess.run(["chrt", "--all-tasks", "--batch", "--pid", "0", str(popen.pid)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def _sched_once_up(self, proc, popen):
+        """An agent (re)started after the run's first step gets its policy once it is up."""
+        while popen.poll() is None and not self._is_up(proc):
+            time.sleep(0.05)
+        self._give_sched(popen)
 
     def _read_holds(self, popen):
         for line in popen.stdout:
@@ -556,14 +585,19 @@ class Launcher:
         """Until p's log says it is up (its participant made and, when secure, authenticated
         with every peer it found), it ended, or timeout_s (then the next one starts anyway)."""
         end = time.monotonic() + timeout_s
-        while time.monotonic() < end and p.popen.poll() is None:
-            try:
-                with open(p.log_path, "rb") as f:
-                    if b" up: run " in f.read():
-                        return
-            except OSError:
-                pass
+        while time.monotonic() < end and p.popen.poll() is None and not self._is_up(p):
             time.sleep(0.05)
+
+    @staticmethod
+    def _is_up(p):
+        """Whether p's log says it is up (since its last start: a restarted agent's log is
+        appended to, so the lines of a start before it do not count)."""
+        try:
+            with open(p.log_path, "rb") as f:
+                f.seek(p.log_offset)
+                return b" up: run " in f.read()
+        except OSError:
+            return False
 
     def current_step(self):
         row = artefacts.last_row(os.path.join(self.out_dir, "target.csv"))
@@ -676,6 +710,11 @@ class Launcher:
         Returns the step the target reached."""
         self._handle_holds()
         step = self.current_step()
+        if self._sched_deferred and not self._sched_given and step >= 1:
+            self._sched_given = True
+            for name, p in self.procs.items():
+                if name.startswith("agent_") and p.popen is not None:
+                    self._give_sched(p.popen)
         # A fault whose step the target never held is applied now, late: a real-time target
         # restarted meanwhile resumes after the agents' newest step and skips the steps in
         # between (docs/PROTOCOL.md, "Resuming in real time"). Before, such a fault waited

@@ -474,3 +474,49 @@ def test_sixteen_agents(work, domain):
         # stalled 5 times at start took 35 s).
         due = min(up, started[f"agent_{j}"] + 30.0)
         assert started[f"agent_{j + 1}"] >= due - 0.002, f"agent {j + 1} started before agent {j} was up"
+
+
+def test_agents_sched(work, domain):
+    """A secure run's agents start under SCHED_OTHER and get SCHED_BATCH, every thread, at the
+    run's first step; an agent restarted later gets it once it is up. With the agents under
+    SCHED_BATCH from their start, the handshakes of a secure start stalled again and again
+    (16 agents: 2 of 2 starts left agents that never heard each other; docs/RUNNING.md, "CPU
+    scheduling")."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=3, steps=3000,
+                            domain=domain, progress=False, secure=True, overrides=[LONG_LEASE])
+
+    def policies(name):
+        pid = lau.procs[name].popen.pid
+        tasks = os.listdir(f"/proc/{pid}/task")
+        assert len(tasks) > 3, name  # Fast DDS's threads are up
+        return {os.sched_getscheduler(int(t)) for t in tasks}
+
+    agents = [f"agent_{j}" for j in (1, 2, 3)]
+    try:
+        lau.start()  # returns once every agent is up, before the run's first step
+        at_start = {a: policies(a) for a in agents}
+        lau.wait_for_step(5)
+        running = {a: policies(a) for a in agents}
+        lau.restart_agent(2)
+        p = lau.procs["agent_2"]
+        deadline = time.time() + 120
+        while not lau._is_up(p) and time.time() < deadline:
+            lau.service()
+            time.sleep(0.1)
+        up = lau._is_up(p)
+        restarted = set()
+        while time.time() < deadline:  # the launcher gives it its policy when it sees it up
+            lau.service()
+            restarted = policies("agent_2")
+            if restarted == {os.SCHED_BATCH}:
+                break
+            time.sleep(0.1)
+        target = policies("target")
+    finally:
+        lau.terminate_all()
+        lau.finish()
+    assert at_start == {a: {os.SCHED_OTHER} for a in agents}, at_start
+    assert running == {a: {os.SCHED_BATCH} for a in agents}, running
+    assert up, "the restarted agent never said it was up"
+    assert restarted == {os.SCHED_BATCH}, restarted
+    assert target == {os.sched_getscheduler(0)}, target
