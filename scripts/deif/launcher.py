@@ -17,6 +17,7 @@ import math
 import os
 import queue
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -157,9 +158,16 @@ DISCOVERY_SERVER_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
 """
 
 
+# glibc's sem_open makes a named semaphore as a temporary file "sem.XXXXXX" (6 letters or
+# digits), links it to its name and removes the temporary one; a process killed in between
+# (kill -9 while Fast DDS opens a port's mutex) leaves the temporary file behind.
+SEM_TEMPORARY = re.compile(r"sem\.[A-Za-z0-9]{6}")
+
+
 def shm_snapshot():
     try:
-        return {n for n in os.listdir(SHM_DIR) if n.startswith(SHM_PREFIXES)}
+        return {n for n in os.listdir(SHM_DIR)
+                if n.startswith(SHM_PREFIXES) or SEM_TEMPORARY.fullmatch(n)}
     except OSError:
         return set()
 

@@ -176,7 +176,8 @@ def test_shm_cleanup_keeps_every_file_of_a_port_some_process_uses(tmp_path, monk
     """A port's lock file (_el) is held open, not mapped; its mapped file and named mutex may
     not be in use at the moment. The cleanup keeps the whole family while any file of it is
     mapped or open, and removes families nobody uses (docs/RUNNING.md, "Several runs on one
-    host"). Files that were there before the run are never touched."""
+    host"), glibc's temporary semaphore files too. Files that were there before the run are
+    never touched."""
     import mmap
     d = str(tmp_path)
     monkeypatch.setattr(launcher, "SHM_DIR", d)
@@ -184,11 +185,16 @@ def test_shm_cleanup_keeps_every_file_of_a_port_some_process_uses(tmp_path, monk
     before = launcher.shm_snapshot()
     live_port = ["fastrtps_port7411", "fastrtps_port7411_el", "sem.fastrtps_port7411_mutex"]
     live_segment = ["fastrtps_0123abcd4567ef89", "fastrtps_0123abcd4567ef89_el"]
+    # glibc's temporary file of a named semaphore, left by a process killed inside sem_open;
+    # one still open belongs to a sem_open in progress.
+    live_temporary = ["sem.Qz81mK"]
     dead = ["fastrtps_port7413", "fastrtps_port7413_el", "sem.fastrtps_port7413_mutex",
-            "fastrtps_fedcba9876543210", "fastrtps_fedcba9876543210_el"]
-    for name in live_port + live_segment + dead + ["unrelated_file"]:
+            "fastrtps_fedcba9876543210", "fastrtps_fedcba9876543210_el", "sem.a7XbQ2"]
+    unrelated = ["unrelated_file", "sem.someone_else", "sem.a7XbQ"]
+    for name in live_port + live_segment + live_temporary + dead + unrelated:
         _touch(d, name)
     lock = open(os.path.join(d, "fastrtps_port7411_el"), "rb")  # held open, like a listener's lock
+    opening = open(os.path.join(d, "sem.Qz81mK"), "rb")
     seg = open(os.path.join(d, "fastrtps_0123abcd4567ef89"), "r+b")
     mapped = mmap.mmap(seg.fileno(), 4096)                       # mapped, like a segment
     seg.close()
@@ -198,9 +204,11 @@ def test_shm_cleanup_keeps_every_file_of_a_port_some_process_uses(tmp_path, monk
     finally:
         mapped.close()
         lock.close()
-    assert left == set(live_port + live_segment + ["fastrtps_port7000", "unrelated_file"])
-    assert launcher.shm_cleanup(before) == len(live_port + live_segment)  # nobody uses them now
-    assert set(os.listdir(d)) == {"fastrtps_port7000", "unrelated_file"}
+        opening.close()
+    assert left == set(live_port + live_segment + live_temporary + ["fastrtps_port7000"] + unrelated)
+    # Nobody uses them now.
+    assert launcher.shm_cleanup(before) == len(live_port + live_segment + live_temporary)
+    assert set(os.listdir(d)) == {"fastrtps_port7000", *unrelated}
 
 
 def test_a_domain_in_use_over_shared_memory_is_seen(tmp_path, monkeypatch):
