@@ -168,7 +168,7 @@ void AgentProtocol::OnContribution(const ContributionMsg& msg, const SenderKey& 
                                ", begun after it was seen lost (its liveliness was not reported back); members now " +
                                std::to_string(Members().size()));
     } else {
-      Log(LogLevel::kInfo, who + " is a member; members now " + std::to_string(Members().size()));
+      joined_.push_back(msg.agent_id);  // logged with the others of this batch (FlushJoined)
     }
   }
   if (!peer.last_position || peer.last_position->first < msg.step - 1) {
@@ -450,6 +450,7 @@ std::optional<double> AgentProtocol::NextDeadline() const {
 }
 
 std::vector<AgentAction> AgentProtocol::TakeActions() {
+  FlushJoined();
   std::vector<AgentAction> out;
   out.swap(actions_);
   return out;
@@ -1089,7 +1090,18 @@ void AgentProtocol::DropPendingRanges(std::map<StepIndex, PendingRange>::iterato
 }
 
 void AgentProtocol::Log(LogLevel level, std::string text) {
+  FlushJoined();  // the log keeps the order of events
   actions_.push_back(agent_action::Log{level, std::move(text)});
+}
+
+void AgentProtocol::FlushJoined() {
+  if (joined_.empty()) return;
+  std::string text = joined_.size() == 1 ? "agent " : "agents ";
+  for (std::size_t i = 0; i < joined_.size(); ++i) text += (i > 0 ? " " : "") + std::to_string(joined_[i]);
+  text += joined_.size() == 1 ? " is a member" : " are members";
+  text += "; members now " + std::to_string(Members().size());
+  joined_.clear();
+  actions_.push_back(agent_action::Log{LogLevel::kInfo, std::move(text)});
 }
 
 void AgentProtocol::LogOnce(LogLevel level, const std::string& key, std::string text) {

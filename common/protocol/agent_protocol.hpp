@@ -266,6 +266,7 @@ class AgentProtocol {
   EarlyIt DropEarly(EarlyIt first, EarlyIt last, const std::string& reason);
   // Drops (and counts as skipped_step) the pending ranges before `last`.
   void DropPendingRanges(std::map<StepIndex, PendingRange>::iterator last);
+  void FlushJoined();
   void Log(LogLevel level, std::string text);
   void LogOnce(LogLevel level, const std::string& key, std::string text);
   void Publish(const StateMsg& msg);
@@ -291,6 +292,9 @@ class AgentProtocol {
   bool relaying_ = false;                 // ... whose contributions a relay forwarded
   std::optional<StepIndex> dirty_from_;   // held while deferring, not yet recomputed
   std::vector<AgentAction> actions_;
+  // Peers that became members since the last line of the log: one line names them all
+  // (FlushJoined), not one line each (63 at every agent when 64 start together).
+  std::vector<AgentId> joined_;
   AgentCounters counters_;
   std::set<std::string> logged_once_;
 

@@ -1417,3 +1417,64 @@ TEST_CASE("The roll call a relay waits for is the one the protocol accepted", "[
   CHECK(*accepted == std::vector<AgentId>{1, 2, 3});
   CHECK_FALSE(net.agents.at(1)->RollCallOf(29).has_value());  // no range for it yet
 }
+
+TEST_CASE("Peers that become members together are logged in one line", "[protocol]") {
+  // GIVEN three agents, and agent 1 that has heard no contribution of the others yet
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  const auto to1 = [](const Envelope& e) {
+    return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
+  };
+  for (int i = 0; i < 100 && net.held.size() < 2; ++i) {
+    net.Pump(to1);
+    net.AdvanceTime(0.01);
+  }
+  REQUIRE(net.held.size() >= 2);
+  REQUIRE(net.agents.at(1)->Members() == std::set<AgentId>{1});
+  std::vector<Envelope> batch;
+  for (const Envelope& e : net.held) {
+    if (std::get<protocol::ContributionMsg>(e.message).step == 1) batch.push_back(e);
+  }
+  REQUIRE(batch.size() == 2);
+  const auto member_lines = [&net] {
+    std::vector<std::string> out;
+    for (const std::string& l : net.logs[1]) {
+      if (l.find("member") != std::string::npos) out.push_back(l);
+    }
+    return out;
+  };
+  REQUIRE(member_lines().empty());
+  // WHEN a relay's batch brings both at once
+  net.DeliverBatch(1, batch);
+  // THEN one line names both, with the count after them
+  CHECK(net.agents.at(1)->Members() == std::set<AgentId>{1, 2, 3});
+  const std::vector<std::string> lines = member_lines();
+  REQUIRE(lines.size() == 1);
+  const bool either_order = lines[0] == "agents 2 3 are members; members now 3" ||
+                            lines[0] == "agents 3 2 are members; members now 3";
+  CHECK(either_order);
+}
+
+TEST_CASE("A peer that becomes a member alone is logged as one", "[protocol]") {
+  // GIVEN three agents, and agent 1 that has heard no contribution of the others yet
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  const auto to1 = [](const Envelope& e) {
+    return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
+  };
+  for (int i = 0; i < 100 && net.held.size() < 2; ++i) {
+    net.Pump(to1);
+    net.AdvanceTime(0.01);
+  }
+  REQUIRE(net.held.size() >= 2);
+  // WHEN agent 2's contribution comes on its own
+  for (const Envelope& e : net.held) {
+    if (e.from == 2) {
+      net.Deliver(e);
+      break;
+    }
+  }
+  // THEN the log says so in the singular, with the count
+  const auto& log = net.logs[1];
+  CHECK(std::count(log.begin(), log.end(), std::string("agent 2 is a member; members now 2")) == 1);
+}
