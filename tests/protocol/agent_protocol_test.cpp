@@ -68,6 +68,20 @@ protocol::ContributionMsg ValidContributionFrom(ScriptedNetwork& net, AgentId id
   return {};
 }
 
+// Starts the network and runs it until the other agents' contributions to agent 1 (at least
+// two) are held in net.held, undelivered.
+void HoldContributionsToAgent1(ScriptedNetwork& net) {
+  net.Start();
+  const auto to1 = [](const Envelope& e) {
+    return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
+  };
+  for (int i = 0; i < 100 && net.held.size() < 2; ++i) {
+    net.Pump(to1);
+    net.AdvanceTime(0.01);
+  }
+  REQUIRE(net.held.size() >= 2);
+}
+
 }  // namespace
 
 TEST_CASE("In lock-step every agent fuses the whole roll call and all hold bit-identical estimates",
@@ -1421,15 +1435,7 @@ TEST_CASE("The roll call a relay waits for is the one the protocol accepted", "[
 TEST_CASE("Peers that become members together are logged in one line", "[protocol]") {
   // GIVEN three agents, and agent 1 that has heard no contribution of the others yet
   ScriptedNetwork net(kThreeAgents);
-  net.Start();
-  const auto to1 = [](const Envelope& e) {
-    return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
-  };
-  for (int i = 0; i < 100 && net.held.size() < 2; ++i) {
-    net.Pump(to1);
-    net.AdvanceTime(0.01);
-  }
-  REQUIRE(net.held.size() >= 2);
+  HoldContributionsToAgent1(net);
   REQUIRE(net.agents.at(1)->Members() == std::set<AgentId>{1});
   std::vector<Envelope> batch;
   for (const Envelope& e : net.held) {
@@ -1458,15 +1464,7 @@ TEST_CASE("Peers that become members together are logged in one line", "[protoco
 TEST_CASE("A peer that becomes a member alone is logged as one", "[protocol]") {
   // GIVEN three agents, and agent 1 that has heard no contribution of the others yet
   ScriptedNetwork net(kThreeAgents);
-  net.Start();
-  const auto to1 = [](const Envelope& e) {
-    return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message);
-  };
-  for (int i = 0; i < 100 && net.held.size() < 2; ++i) {
-    net.Pump(to1);
-    net.AdvanceTime(0.01);
-  }
-  REQUIRE(net.held.size() >= 2);
+  HoldContributionsToAgent1(net);
   // WHEN agent 2's contribution comes on its own
   for (const Envelope& e : net.held) {
     if (e.from == 2) {
