@@ -769,7 +769,7 @@ def make_table(res):
     if res.get("lockstep"):
         lines.append("**Lock-step (1 target + N agent processes, this host)**")
         lines.append("")
-        lines.append("| N | finished | steps/s (observed) | steps/s (steady, target.csv) | steps/s (target log) "
+        lines.append("| N | finished | steps/s (observed) | steps/s (steady, target.csv) | steps/s (target log, its wait for the agents included) "
                      "| step latency p50 [ms] | p99 [ms] | discovery to first fused step [s] | CPU per step [ms] "
                      "| peak RSS per agent, median / max [MB] | peak PSS per agent, median / max [MB] |")
         lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
