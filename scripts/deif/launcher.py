@@ -490,13 +490,20 @@ class Launcher:
             threading.Thread(target=self._sched_once_up, args=(proc, proc.popen), daemon=True).start()
 
     def _give_sched(self, popen):
-        """Gives every thread of the running agent `popen` the agents' policy (chrt
-        --all-tasks); threads made later inherit it from the thread that makes them. Twice,
-        for a thread made while the first pass ran."""
+        """Gives every thread of the running agent `popen` the agents' policy (what `chrt
+        --all-tasks --batch --pid 0 PID` does, without a process per agent); threads made
+        later inherit it from the thread that makes them. Twice, for a thread made while the
+        first pass ran."""
         for _ in range(2):
-            if popen.poll() is None:
-                subprocess.run(["chrt", "--all-tasks", "--batch", "--pid", "0", str(popen.pid)],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            try:
+                tids = os.listdir(f"/proc/{popen.pid}/task")
+            except OSError:
+                return  # it ended
+            for tid in tids:
+                try:
+                    os.sched_setscheduler(int(tid), os.SCHED_BATCH, os.sched_param(0))
+                except OSError:
+                    pass  # that thread ended meanwhile
 
     def _sched_once_up(self, proc, popen):
         """An agent (re)started after the run's first step gets its policy once it is up."""
