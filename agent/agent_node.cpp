@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <string>
 #include <type_traits>
 #include <vector>
@@ -28,6 +29,7 @@ protocol::AgentProtocol::Options ProtocolOptions(const dds::ProcessContext& cont
                                                  std::uint64_t token, const dds::Timings& timings) {
   protocol::AgentProtocol::Options options;
   options.peer_grace_s = timings.peer_grace_s;
+  options.roll_call_membership = EffectiveMembership(context.config) == MembershipKind::kRollCall;
   options.run = protocol::RunTokenOf(context.run_name);
   options.instance_token = token;
   options.resume_after = dds::LastStepAppendedTo(context, AgentCsvName(id), &ReadAgentCsv, "joining as a new agent");
@@ -48,8 +50,13 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
-  // Garbage under ids no agent of the run has is dropped as it arrives (and counted).
-  node_.AddReader({dds::Topic::kContribution, {}, std::make_pair(AgentId{1}, AgentId{config_.agents.count})});
+  // Garbage under ids no agent of the run has is dropped as it arrives (and counted). With
+  // membership from the roll call, no reader: the peers' contributions come along the tree,
+  // and their writers are matched by no agent (docs/PROTOCOL.md, "Membership from the roll
+  // call"); the writer stays, its key the identity its contributions are relayed under.
+  if (!RollCallMembership()) {
+    node_.AddReader({dds::Topic::kContribution, {}, std::make_pair(AgentId{1}, AgentId{config_.agents.count})});
+  }
   // Only states claiming this id, for the start check of AnotherProcessHasThisId and no
   // longer: every peer's state writer matches a reader filtered to one id and sends it
   // traffic about the samples it filters out, which doubled the packets of a step
@@ -79,7 +86,11 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
   }
   context_.log->info("agent {} up: run '{}', domain {}, token {:016x}", id_, context_.run_name,
                      config_.network.domain_id, instance_token_);
-  if (tree_) {
+  if (tree_ && RollCallMembership()) {
+    context_.log->info("exchange: tree, fan-out {}, parent {}; membership: the target's roll call "
+                       "(docs/PROTOCOL.md)",
+                       EffectiveTreeFanout(config_), ParentName(tree_->place().parent));
+  } else if (tree_) {
     context_.log->info("exchange: tree, fan-out {}, parent {}; a silent peer is lost after {:.2f} s "
                        "(lease {:.2f} s, renewed every {:.2f} s, grace {:.2f} s) (docs/SCALING.md)",
                        EffectiveTreeFanout(config_), ParentName(tree_->place().parent),
@@ -273,11 +284,28 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
   const bool target = node_.TargetUp();
   const bool server = config_.network.discovery == DiscoveryKind::kServer;
   // Both ways: its reader matched every peer's writer, its writer every peer's reader (only
-  // the side that misses an endpoint can tell).
-  const int expected = 2 * peers + (target || server ? 1 : 0);
-  const int matched = std::min(node_.MatchedWriters(dds::Topic::kContribution), peers) +
-                      std::min(node_.MatchedReaders(dds::Topic::kContribution), peers) +
-                      (target ? std::min(node_.MatchedWriters(dds::Topic::kRange), 1) : 0);
+  // the side that misses an endpoint can tell). With membership from the roll call, the
+  // four ends of its links in the tree instead (TreeLinksMatched).
+  int expected = 2 * peers + (target || server ? 1 : 0);
+  int matched = (target ? std::min(node_.MatchedWriters(dds::Topic::kRange), 1) : 0);
+  if (RollCallMembership()) {
+    // Only the links to the agents whose participants are up: one cut off by a partition,
+    // gone from the participants, stays in this agent's tree for as long as no roll call
+    // reaches it (docs/PROTOCOL.md, "Membership from the roll call").
+    const protocol::TreePlace& place = tree_->place();
+    const std::set<AgentId> up = node_.AgentsUp();
+    const int parent = place.parent && up.count(*place.parent) > 0 ? 1 : 0;
+    const int children = static_cast<int>(
+        std::count_if(place.children.begin(), place.children.end(), [&](AgentId c) { return up.count(c) > 0; }));
+    expected = 2 * parent + 2 * children + (target || server ? 1 : 0);
+    matched += std::min(node_.MatchedReaders(dds::Topic::kRelayUp), parent) +
+               std::min(node_.MatchedWriters(dds::Topic::kRelayDown), parent) +
+               std::min(node_.MatchedWriters(dds::Topic::kRelayUp), children) +
+               std::min(node_.MatchedReaders(dds::Topic::kRelayDown), children);
+  } else {
+    matched += std::min(node_.MatchedWriters(dds::Topic::kContribution), peers) +
+               std::min(node_.MatchedReaders(dds::Topic::kContribution), peers);
+  }
   if (!discovery_watch_.Stalled(expected, matched, node_.EndpointsHeard(), now_s)) return false;
   const std::string why = fmt::format(
       "endpoint discovery stopped short: {} peers and {} up, {} of {} contribution and range endpoints matched, unchanged "
@@ -296,6 +324,19 @@ void AgentNode::ReportMatches(double now_s) {
   // the target.
   int matched = std::min(node_.MatchedWriters(dds::Topic::kContribution),
                          node_.MatchedReaders(dds::Topic::kContribution));
+  if (RollCallMembership()) {
+    // No pair of agents is matched but along the tree: this agent and the peers it sees up
+    // (their participants), once its links are matched (docs/PROTOCOL.md, "Membership from
+    // the roll call").
+    if (const std::uint64_t version = node_.ParticipantsVersion(); version != peers_up_version_) {
+      peers_up_version_ = version;  // only then: AgentsUp builds a set (every pass of the loop)
+      peers_up_ = 1;
+      for (AgentId j : node_.AgentsUp()) {
+        peers_up_ += j != id_ && j >= 1 && j <= static_cast<AgentId>(config_.agents.count) ? 1 : 0;
+      }
+    }
+    matched = peers_up_;
+  }
   // Over the tree a step's contributions travel only along its links: until this agent's
   // links to its parent and children are matched both ways, it does not count as hearing
   // everyone (docs/PROTOCOL.md, "Start"). Looked at only when it would count (each look

@@ -68,6 +68,12 @@ class AgentNode : public dds::Application {
   // Whether the relay endpoints of this agent's place in the tree matched their other ends:
   // its parent's (one each way) and its children's (docs/SCALING.md).
   bool TreeLinksMatched() const;
+  // network.membership: roll_call (docs/PROTOCOL.md, "Membership from the roll call").
+  // With membership from the roll call: this agent and the peers whose participants it sees
+  // (ReportMatches), as of ParticipantsVersion peers_up_version_.
+  int peers_up_ = 1;
+  std::optional<std::uint64_t> peers_up_version_;
+  bool RollCallMembership() const { return EffectiveMembership(config_) == MembershipKind::kRollCall; }
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason, and
   // how long samples took to reach it.
   void WriteCounters() const;

@@ -510,6 +510,13 @@ class Rules {
             "exchange: tree needs security.enabled: false (a relay's forwarded contributions "
             "cannot be authenticated)");
     }
+    if (n.membership == MembershipKind::kRollCall && EffectiveExchange(c_) != ExchangeKind::kTree) {
+      // Over all to all every contribution travels on deif/contribution, whose readers are
+      // what this membership does without.
+      Blame({"network.membership", "network.exchange"},
+            std::string("membership: roll_call needs the tree exchange (exchange: tree, or auto from ") +
+                std::to_string(kTreeFromAgents) + " agents on in plain runs); this run's is all_to_all");
+    }
     if (n.exchange == ExchangeKind::kTree && n.ros2_naming) {
       Blame({"network.exchange", "network.ros2_naming"},
             "exchange: tree needs ros2_naming: false (its relays use partitions)");
@@ -893,6 +900,14 @@ ExchangeKind EffectiveExchange(const Config& config) {
   if (n.exchange != ExchangeKind::kAuto) return n.exchange;
   const bool plain = !n.security.enabled && !n.ros2_naming && n.discovery == DiscoveryKind::kSimple;
   return plain && config.agents.count >= kTreeFromAgents ? ExchangeKind::kTree : ExchangeKind::kAllToAll;
+}
+
+MembershipKind EffectiveMembership(const Config& config) {
+  const MembershipKind m = config.network.membership;
+  if (m != MembershipKind::kAuto) return m;
+  return EffectiveExchange(config) == ExchangeKind::kTree && config.agents.count >= kRollCallFromAgents
+             ? MembershipKind::kRollCall
+             : MembershipKind::kAllPairs;
 }
 
 double EffectiveRelayLeaseS(const Config& config) {

@@ -78,6 +78,11 @@ enum class TransportKind { kUdp, kShm };
 // other, or relayed as batches along a tree of the members.
 // auto: the tree from kTreeFromAgents agents on in plain runs (docs/SCALING.md).
 enum class ExchangeKind { kAuto, kAllToAll, kTree };
+// How an agent knows which peers are members (docs/PROTOCOL.md, "Membership"): by the
+// liveliness of every peer's contribution writer (every pair of agents matched), or, with the
+// tree exchange only, by the target's roll call of each step (no pair of agents matched).
+// auto: all_pairs.
+enum class MembershipKind { kAuto, kAllPairs, kRollCall };
 
 // DDS Security (docs/SECURITY.md): authentication, access control and encryption.
 struct SecurityConfig {
@@ -104,6 +109,7 @@ struct NetworkConfig {
   int tree_fanout = 0;               // exchange: tree: children per relay; 0: auto
   double relay_wait_s = 0.02;        // exchange: tree: a relay's longest wait for its children
   double relay_lease_s = 0.0;        // exchange: tree: a parent's relay writer's lease; 0: liveliness_lease_s
+  MembershipKind membership = MembershipKind::kAuto;  // who is a member: all pairs' liveliness or the roll call
   bool process_watch = true;         // lose a peer on this host once its process ended (port locks)
   TransportKind transport = TransportKind::kShm;
   DiscoveryKind discovery = DiscoveryKind::kSimple;
@@ -161,6 +167,15 @@ inline constexpr int kTreeFromAgents = 17;
 // security, ros2_naming or a Discovery Server, below kTreeFromAgents agents, and the tree
 // otherwise.
 ExchangeKind EffectiveExchange(const Config& config);
+// network.membership: auto takes the roll call over the tree from this many agents on
+// (docs/PROTOCOL.md, "Membership from the roll call"): there the budget of every pair's
+// liveliness renewals already stretches the agents' leases (docs/CONFIG.md,
+// network.liveliness_lease_s), so a peer's own liveliness tells an agent of a loss no sooner
+// than the target's roll call does, while its N (N - 1) matched pairs cost the host most.
+inline constexpr int kRollCallFromAgents = 28;
+// The membership a run uses: network.membership, with auto resolved: roll_call with the
+// tree exchange from kRollCallFromAgents agents on, all_pairs otherwise.
+MembershipKind EffectiveMembership(const Config& config);
 // The tree's fan-out a run uses: network.tree_fanout, with 0 (auto) resolved from
 // agents.count to the smallest fan-out F whose tree holds every agent within two levels
 // below the root (1 + F + F^2 >= N), and at least kMinAutoFanout: 4 up to 21 agents, 8 at

@@ -84,6 +84,14 @@ const std::vector<EnumName<ExchangeKind>>& EnumTable<ExchangeKind>() {
   return table;
 }
 
+template <>
+const std::vector<EnumName<MembershipKind>>& EnumTable<MembershipKind>() {
+  static const std::vector<EnumName<MembershipKind>> table = {{"auto", MembershipKind::kAuto},
+                                                              {"all_pairs", MembershipKind::kAllPairs},
+                                                              {"roll_call", MembershipKind::kRollCall}};
+  return table;
+}
+
 const char* ToString(ControlLawKind law) { return NameOf(law); }
 const char* ToString(MotionModelKind kind) { return NameOf(kind); }
 const char* ToString(TrajectoryKind kind) { return NameOf(kind); }
@@ -92,5 +100,6 @@ const char* ToString(FaultAction action) { return NameOf(action); }
 const char* ToString(DiscoveryKind kind) { return NameOf(kind); }
 const char* ToString(TransportKind kind) { return NameOf(kind); }
 const char* ToString(ExchangeKind kind) { return NameOf(kind); }
+const char* ToString(MembershipKind kind) { return NameOf(kind); }
 
 }  // namespace deif

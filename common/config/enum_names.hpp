@@ -18,6 +18,7 @@ enum class FaultAction;
 enum class DiscoveryKind;
 enum class TransportKind;
 enum class ExchangeKind;
+enum class MembershipKind;
 
 template <typename Enum>
 struct EnumName {
@@ -44,6 +45,8 @@ template <>
 const std::vector<EnumName<TransportKind>>& EnumTable<TransportKind>();
 template <>
 const std::vector<EnumName<ExchangeKind>>& EnumTable<ExchangeKind>();
+template <>
+const std::vector<EnumName<MembershipKind>>& EnumTable<MembershipKind>();
 
 // The name of a value ("?" for a value outside the table).
 const char* ToString(ControlLawKind law);
@@ -54,6 +57,7 @@ const char* ToString(FaultAction action);
 const char* ToString(DiscoveryKind kind);
 const char* ToString(TransportKind kind);
 const char* ToString(ExchangeKind kind);
+const char* ToString(MembershipKind kind);
 
 // The value of a name; false (and *value unchanged) for a name outside the table.
 template <typename Enum>

@@ -627,6 +627,20 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "tree_fanout readers, so this lease need not grow with N. An idle relay writer "
            "renews it up to 3 times a lease (at most liveliness_assertions_per_lease). 0: "
            "liveliness_lease_s (docs/SCALING.md, \"Losing a relay\").");
+  t.Add("membership", [](Config& c) -> auto& { return c.network.membership; })
+      .Default(MembershipKind::kAuto)
+      .Note("roll_call needs the tree exchange")
+      .Doc("How an agent knows which peers are members. all_pairs: by the liveliness of "
+           "every peer's writer of deif/contribution, which every agent reads, N (N - 1) "
+           "matched pairs renewed all the time. roll_call (exchange: tree only): by the "
+           "target's roll call of each step; an agent reads no peer's deif/contribution, so "
+           "no pair of agents is matched but along the tree. A peer the roll call leaves out "
+           "is lost at once, one it names again is back; an agent cut off from the target "
+           "keeps its members until it hears the target again (docs/PROTOCOL.md, "
+           "\"Membership from the roll call\"). auto: roll_call over the tree from 28 agents "
+           "on, where the budget of every pair's liveliness renewals already makes the "
+           "agents' leases longer (a peer's own liveliness tells of a loss no sooner than the "
+           "roll call); all_pairs otherwise.");
   t.Add("process_watch", [](Config& c) -> auto& { return c.network.process_watch; })
       .Default(true)
       .Doc("On one host, take an agent whose process ended (kill -9, a crash: the kernel "

@@ -120,6 +120,8 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
     }
     const bool opened_on_the_clock = !it->second.roll_call;  // a range sets the roll call
     ApplyRange(it->second, msg, unusable_measurement);
+    FollowRollCall(now_s);
+    if (finished_) return;
     if (RealTime() && opened_on_the_clock && msg.step == records_.rbegin()->first) {
       // Real time: the newest step's range came after its deadline, so the target's clock
       // runs behind ours (a restarted target keeps its own period's phase): follow it, or
@@ -134,6 +136,8 @@ void AgentProtocol::OnRange(const RangeMsg& msg, const SenderKey& from, double n
     return;
   }
   pending_ranges_[msg.step] = PendingRange{msg, now_s, unusable_measurement};
+  FollowRollCall(now_s);  // before the step in hand is finished: a member may have died in it
+  if (finished_) return;
   Advance(now_s);
   if (!finished_) ConfirmLapses(now_s);  // a new roll call: held lapses of peers it leaves out
 }
@@ -260,6 +264,7 @@ void AgentProtocol::OnProcessEnded(const SenderKey& participant, double now_s) {
     if (peer.writer && peer.alive && SameProcess(*peer.writer, participant)) ended.push_back(*peer.writer);
   }
   for (const SenderKey& writer : ended) {
+    if (auto bound = writer_ids_.find(writer); bound != writer_ids_.end()) peers_[bound->second].ended = true;
     lapses_.Confirm(writer);
     ApplyLiveliness(writer, false, now_s, kProcessEnded);
     if (finished_) return;
@@ -278,13 +283,58 @@ std::set<AgentId> AgentProtocol::MembersOutOfRollCall() const {
   return out;
 }
 
-const std::vector<AgentId>* AgentProtocol::NewestRollCall() const {
+const std::vector<AgentId>* AgentProtocol::NewestRollCall(StepIndex* step) const {
   // Of a range waiting, or of the newest step.
   if (!pending_ranges_.empty() && !pending_ranges_.rbegin()->second.msg.roll_call.empty()) {
+    if (step != nullptr) *step = pending_ranges_.rbegin()->first;
     return &pending_ranges_.rbegin()->second.msg.roll_call;
   }
-  if (!records_.empty() && records_.rbegin()->second.roll_call) return &*records_.rbegin()->second.roll_call;
+  if (!records_.empty() && records_.rbegin()->second.roll_call) {
+    if (step != nullptr) *step = records_.rbegin()->first;
+    return &*records_.rbegin()->second.roll_call;
+  }
   return nullptr;
+}
+
+void AgentProtocol::FollowRollCall(double now_s) {
+  // network.membership: roll_call (docs/PROTOCOL.md, "Membership from the roll call"). The
+  // target names in each roll call the agents it hears (their state writers, whose lease and
+  // grace it holds, and on one host their processes' port locks), and no peer's liveliness
+  // reaches this agent: that roll call is who is a member. A peer it names again is back,
+  // unless its process was seen ended, or the roll call is not newer than the step this
+  // agent knew of when it lost the peer (a range on its way).
+  if (!options_.roll_call_membership || finished_) return;
+  StepIndex step = 0;
+  const std::vector<AgentId>* roll_call = NewestRollCall(&step);
+  if (roll_call == nullptr) return;
+  std::vector<std::pair<SenderKey, bool>> changes;
+  for (const auto& [id, peer] : peers_) {
+    if (id == id_ || !peer.writer) continue;
+    const bool named = std::binary_search(roll_call->begin(), roll_call->end(), id);
+    if (peer.alive && !named) changes.emplace_back(*peer.writer, false);
+    if (!peer.alive && named && !peer.ended && step > peer.lost_in_step) changes.emplace_back(*peer.writer, true);
+  }
+  if (changes.empty()) return;
+  // One line for the peers lost, one for those back (a host cut off takes dozens at once).
+  const std::string left_out = "left out of the target's roll call of step " + std::to_string(step);
+  const std::string named = "named again in the target's roll call of step " + std::to_string(step);
+  std::vector<AgentId> lost, back;
+  for (const auto& [writer, alive] : changes) {
+    const AgentId id = writer_ids_.at(writer);
+    // One that finished the run is logged as having left (ApplyLiveliness).
+    const bool left = !alive && peers_.at(id).last_step >= config_.scenario.steps;
+    ApplyLiveliness(writer, alive, now_s, alive ? named.c_str() : left_out.c_str(), /*quiet=*/!left);
+    if (!left) (alive ? back : lost).push_back(id);
+    if (finished_) return;
+  }
+  const auto line = [this](LogLevel level, const std::vector<AgentId>& ids, const std::string& what) {
+    if (ids.empty()) return;
+    std::string text = ids.size() == 1 ? "agent " : "agents ";
+    for (std::size_t i = 0; i < ids.size(); ++i) text += (i > 0 ? " " : "") + std::to_string(ids[i]);
+    Log(level, text + what + "; members now " + std::to_string(MemberCount()));
+  };
+  line(LogLevel::kWarn, lost, " lost (" + left_out + ")");
+  line(LogLevel::kInfo, back, (back.size() == 1 ? " is" : " are") + std::string(" alive again (") + named + ")");
 }
 
 void AgentProtocol::ConfirmLapses(double now_s) {
@@ -312,7 +362,8 @@ void AgentProtocol::ConfirmLapses(double now_s) {
   }
 }
 
-void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why) {
+void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why,
+                                    bool quiet) {
   if (target_writer_ && writer == *target_writer_) {
     target_alive_ = alive;
     LogOnce(alive ? LogLevel::kInfo : LogLevel::kWarn,
@@ -333,9 +384,12 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
     peer.lost_once = true;
     peer.lost_in_step = NewestKnownStep();
   }
+  if (quiet) return;
   const std::string members = std::to_string(Members().size());
   if (alive) {
-    Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " is alive again; members now " + members);
+    const bool by_liveliness = std::string(why) == "liveliness";
+    Log(LogLevel::kInfo, "agent " + std::to_string(bound->second) + " is alive again" +
+                             (by_liveliness ? std::string() : " (" + std::string(why) + ")") + "; members now " + members);
   } else if (peer.last_step >= config_.scenario.steps) {
     // Its contribution to the last step arrived: it finished the run and left, it was not
     // lost (a peer that is behind sees the others leave first).
@@ -1016,6 +1070,12 @@ bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& 
   // once it is gone, the new writer is that agent restarted. A bound writer whose lapse is
   // within its grace is taken as gone.
   if (peer.alive && lapses_.Confirm(*peer.writer)) ApplyLiveliness(*peer.writer, false, now_s);
+  if (peer.alive && options_.roll_call_membership && msg.step > peer.last_step + 1) {
+    // No liveliness says that the bound writer is gone (docs/PROTOCOL.md, "Membership from
+    // the roll call"): a writer that speaks for a step past one the bound writer missed is
+    // the agent restarted. (A restart outran by the target keeps the id in every roll call.)
+    ApplyLiveliness(*peer.writer, false, now_s, "a new writer speaks for it, and the old one missed a step");
+  }
   if (peer.alive) {
     Reject(who, "agent_id_clash");
     return false;
@@ -1023,6 +1083,7 @@ bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& 
   writer_ids_.erase(*peer.writer);
   peer.writer = from;
   peer.lost_once = false;  // a new writer: the agent restarted
+  peer.ended = false;
   peer.instance_token = msg.instance_token;
   writer_ids_[from] = msg.agent_id;
   Log(LogLevel::kInfo, who + " rejoined with a new writer " + ToString(from));

@@ -97,6 +97,12 @@ class AgentProtocol {
     // (< 0: network.liveliness_grace_s, as for the target's writer). Longer where those
     // writers renew their liveliness rarely (dds::Timings::peer_grace_s).
     double peer_grace_s = -1.0;
+    // network.membership: roll_call (docs/PROTOCOL.md, "Membership from the roll call"): no
+    // peer's liveliness reaches this agent; the target's newest roll call says who is a
+    // member. A peer it leaves out is lost at once, one it names again is back, and a new
+    // writer that speaks for a member is that agent restarted once the bound writer has
+    // missed a step.
+    bool roll_call_membership = false;
   };
 
   // The config must outlive the protocol. Throws std::invalid_argument for an id outside
@@ -185,14 +191,19 @@ class AgentProtocol {
   long merges_computed_ = 0;  // merges_computed()
   // A liveliness change that passed the lapse filter (a loss held for the grace, or a return).
   // why: what the loss line says it came from.
-  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why = "liveliness");
+  // quiet: no line in the log (the caller writes one for several peers).
+  void ApplyLiveliness(const SenderKey& writer, bool alive, double now_s, const char* why = "liveliness",
+                       bool quiet = false);
   // The target's newest roll call this agent holds: of a range waiting, or of the newest
   // step; nullptr before any.
-  const std::vector<AgentId>* NewestRollCall() const;
+  // step: set to the step of that roll call.
+  const std::vector<AgentId>* NewestRollCall(StepIndex* step = nullptr) const;
   void HoldTargetRange(const RangeMsg& msg, const SenderKey& from);
   void AdoptHeldTarget(double now_s);
   // Acts on the held losses whose grace is over.
   void ConfirmLapses(double now_s);
+  // network.membership: roll_call: the members follow the newest roll call.
+  void FollowRollCall(double now_s);
   // A validated contribution held for its step.
   struct Held {
     ContributionMsg msg;
@@ -232,6 +243,7 @@ class AgentProtocol {
     std::optional<std::pair<StepIndex, Vector2>> last_position;  // (step, position)
     StepIndex last_step = 0;  // of its newest valid contribution
     StepIndex lost_in_step = 0;  // the newest step this agent knew of when it saw it lost
+    bool ended = false;  // its writer's process was seen ended (OnProcessEnded): never back
   };
   struct PendingRange {
     RangeMsg msg;

@@ -37,6 +37,16 @@ DEFAULT_CONFIG = os.path.join(ROOT, "configs", "default.yaml")
 RESULTS_DIR = os.path.join(ROOT, "bench", "results")
 SECTIONS = ("core", "pingpong", "alltoall", "lockstep", "failure", "wire", "network", "realtime", "security",
             "hostile", "discovery")
+# network.exchange: auto picks the tree from this many agents on, and network.membership: auto
+# the roll call from ROLL_CALL_FROM_AGENTS on (docs/CONFIG.md). Over the tree the lock-step
+# section also runs the membership that auto does not pick, side by side with the default.
+TREE_FROM_AGENTS = 17
+ROLL_CALL_FROM_AGENTS = 28
+
+
+def other_membership(n):
+    """The membership auto does not pick at n agents (over the tree), as a KEY=VALUE."""
+    return "network.membership=" + ("all_pairs" if n >= ROLL_CALL_FROM_AGENTS else "roll_call")
 LOG_TIME = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\]")
 TARGET_DONE = re.compile(r"done at step (\d+) after ([\d.]+) s")
 
@@ -773,11 +783,14 @@ def make_table(res):
                      "| step latency p50 [ms] | p99 [ms] | discovery to first fused step [s] | CPU per step [ms] "
                      "| peak RSS per agent, median / max [MB] | peak PSS per agent, median / max [MB] |")
         lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-        for n, f in sorted(res["lockstep"].items(), key=lambda kv: int(kv[0])):
+        variants = [(int(n), "", f) for n, f in res["lockstep"].items()] + \
+            [(int(n), ", " + other_membership(int(n)).split(".")[1].replace("=", " "), f)
+             for n, f in (res.get("lockstep_other_membership") or {}).items()]
+        for n, variant, f in sorted(variants, key=lambda v: (v[0], v[1])):
             st = f.get("steady") or {}
             cpu = st.get("cpu_s_per_step")
             lines.append(
-                f"| {n} | {f.get('last_step')}/{f.get('steps')} {_finished(f)} | "
+                f"| {n}{variant} | {f.get('last_step')}/{f.get('steps')} {_finished(f)} | "
                 f"{fmt(f.get('steps_per_s'), '.0f')} | {fmt(st.get('steps_per_s'), '.0f')} | "
                 f"{fmt((f.get('target_rate') or {}).get('steps_per_s'), '.0f')} | "
                 f"{fmt((f.get('latency_ms') or {}).get('p50'), '.2f')} | {fmt((f.get('latency_ms') or {}).get('p99'), '.2f')} | "
@@ -980,7 +993,7 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                 log(f"lockstep: {lacks}: {why}")
                 res["skipped"]["step_observer"] = f"{why}; {lacks}"
         pp = {"shm": [], "udp": []}
-        lock, floor, exch = {}, {}, {}
+        lock, lock_alt, floor, exch = {}, {}, {}, {}
         if pingpong_exe or alltoall_exe or "lockstep" in sections:
             samples = 1000 if quick else 5000
             # The baseline and the lock-step runs side by side: ping-pong, then lock-step.
@@ -1008,6 +1021,14 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
                         lock.setdefault(n, []).append(
                             lockstep_run(n, steps, domains.take(), work_dir, observer_exe,
                                          DEFAULT_CONFIG, timeout_s=cap))
+                        if n >= TREE_FROM_AGENTS:
+                            # The other membership (docs/PROTOCOL.md, "Membership from the roll
+                            # call"), side by side with the default in the same invocation.
+                            other = other_membership(n)
+                            log(f"lock-step N={n}, {other}, {steps} steps (rep {rep + 1}/{reps})")
+                            lock_alt.setdefault(n, []).append(
+                                lockstep_run(n, steps, domains.take(), work_dir, observer_exe,
+                                             DEFAULT_CONFIG, timeout_s=cap, overrides=[other]))
             if pingpong_exe:
                 pp["shm_p50_us_median"] = median([rtt_us(r, "p50") for r in pp["shm"]])
                 pp["udp_p50_us_median"] = median([rtt_us(r, "p50") for r in pp["udp"]])
@@ -1022,6 +1043,9 @@ def run(sections, quick=False, agents=None, keep_runs=False, entry_point=None):
             if lock:
                 res["lockstep_runs"] = {str(n): v for n, v in lock.items()}
                 res["lockstep"] = {str(n): median_run(v) for n, v in lock.items()}
+            if lock_alt:
+                res["lockstep_other_membership_runs"] = {str(n): v for n, v in lock_alt.items()}
+                res["lockstep_other_membership"] = {str(n): median_run(v) for n, v in lock_alt.items()}
         if "failure" in sections:
             res["failure"] = run_failure(3 if quick else 20, 4, domains, work_dir)
         if "wire" in sections:

@@ -164,6 +164,11 @@ TEST_CASE("Every bad config is rejected with a message naming key, line and rule
        "exchange: tree needs security.enabled: false", 3},
       {"tree exchange with ROS 2 naming", "network:\n  ros2_naming: true\n  exchange: tree\n",
        "network.exchange", "exchange: tree needs ros2_naming: false", 3},
+      {"roll call over all to all", "agents:\n  count: 8\nnetwork:\n  membership: roll_call\n",
+       "network.membership", "membership: roll_call needs the tree exchange", 4},
+      {"roll call over an explicit all to all",
+       "network:\n  exchange: all_to_all\n  membership: roll_call\n",
+       "network.membership", "this run's is all_to_all", 3},
       {"unknown exchange", "network:\n  exchange: gossip\n", "network.exchange",
        "allowed: auto, all_to_all, tree", 2},
       {"tree fan-out negative", "network:\n  tree_fanout: -1\n", "network.tree_fanout", "must be in 0..64", 2},
@@ -420,4 +425,19 @@ TEST_CASE("network.exchange: auto is the tree from 17 agents on, in plain runs o
   // Chosen explicitly, either holds at any size.
   CHECK(effective("agents: {count: 64}\nnetwork: {exchange: all_to_all}\n") == deif::ExchangeKind::kAllToAll);
   CHECK(effective("agents: {count: 2}\nnetwork: {exchange: tree}\n") == deif::ExchangeKind::kTree);
+}
+
+TEST_CASE("network.membership: auto is the roll call over the tree from 28 agents on", "[config]") {
+  const auto effective = [](const std::string& yaml) {
+    return deif::EffectiveMembership(deif::ParseConfig(yaml, "inline"));
+  };
+  CHECK(effective("agents: {count: 16}\n") == deif::MembershipKind::kAllPairs);  // all to all
+  CHECK(effective("agents: {count: 27}\n") == deif::MembershipKind::kAllPairs);  // the tree
+  CHECK(effective("agents: {count: 28}\n") == deif::MembershipKind::kRollCall);
+  CHECK(effective("agents: {count: 64}\nnetwork: {exchange: all_to_all}\n") == deif::MembershipKind::kAllPairs);
+  CHECK(effective("agents: {count: 64}\nnetwork: {discovery: server}\n") == deif::MembershipKind::kAllPairs);
+  // Chosen explicitly, either holds over the tree at any size.
+  CHECK(effective("agents: {count: 64}\nnetwork: {membership: all_pairs}\n") == deif::MembershipKind::kAllPairs);
+  CHECK(effective("agents: {count: 3}\nnetwork: {exchange: tree, membership: roll_call}\n") ==
+        deif::MembershipKind::kRollCall);
 }

@@ -974,6 +974,34 @@ def test_tree_relay_killed(work, domain):
         assert relay_log_lines(res.out_dir, j) == [], relay_log_lines(res.out_dir, j)
 
 
+def test_tree_roll_call(work, domain):
+    """N=7 over the tree with membership from the roll call (network.membership: roll_call,
+    docs/PROTOCOL.md, "Membership from the roll call"): no agent reads a peer's
+    contributions, so no peer's liveliness reaches it. Relay 2 killed at step 60, leaf 7 at
+    120: every survivor loses each from the target's roll call (or its process's end), writes
+    every step, fuses the five survivors at the end and equals the simulation bit for bit."""
+    faults = [launcher.Fault(60, "kill", 2), launcher.Fault(120, "kill", 7)]
+    res = launch(work, domain, agents=7, steps=200, faults=faults,
+                 overrides=TREE + ["network.membership=roll_call"])
+    assert res.ok, res.why_not_ok()
+    survivors = [1, 3, 4, 5, 6]
+    for j in survivors:
+        assert steps_of(res.out_dir, j) == list(range(1, 201))
+        last = rows(res.out_dir, j)[-1]
+        assert last["fused"] == "5" and last["alive"] == "5", last
+        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+            log = f.read()
+        assert "membership: the target's roll call" in log
+        for dead in (2, 7):
+            assert f"agent {dead} lost (left out of the target's roll call of step" in log or \
+                f"agent {dead} lost (its process ended" in log, log_excerpt(res.out_dir, j)
+        # Nothing but liveliness of the tree's relays and the target's writer reached it: a
+        # peer that the target names is never lost and back.
+        assert "alive again" not in log, log_excerpt(res.out_dir, j)
+    worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 8))
+    assert worst == 0.0, f"largest difference from the oracle {worst:.3g}"
+
+
 def test_tree_silent_relay_left_at_once(work, domain):
     """N=7 over the tree in real time (10 Hz), with the lease of every agent's writers long
     (3 s, as the liveliness budget makes it at large N: 2.08 s at 64 agents) and the relay

@@ -163,6 +163,38 @@ def test_tree_partition_and_heal(work, domain):
         assert all(by_agent[j][k]["alive"] == "9" for k in after), j
 
 
+def test_tree_roll_call_partition_and_heal(work, domain):
+    """Real time over the tree with membership from the roll call (network.membership:
+    roll_call, docs/PROTOCOL.md, "Membership from the roll call"): host 3 (the even agents) cut
+    off for 3 s. The target's side loses them by the target's roll calls, with no liveliness
+    of theirs (the target's state readers' lease and grace); the cut-off side hears no roll
+    call and keeps its members. Every agent writes every step, and after the heal every agent
+    counts all nine again and the settled steps agree exactly."""
+    res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=250, hosts=3,
+                       overrides=TREE + REALTIME + ["network.membership=roll_call"],
+                       partitions=[launcher.Partition(80, 3.0, 3)], progress=False)
+    assert res.ok, res.why_not_ok()
+    agents = range(1, 10)
+    assert_every_step_written(res.out_dir, agents, 250)
+    p = res.summary["partitions"][0]
+    healed = p["healed_at_step"]
+    assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
+    by_agent = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in agents}
+    cut_off = [j for j in agents if j % 2 == 0]
+    for j in agents:
+        during = {int(by_agent[j][k]["alive"]) for k in range(p["cut_at_step"] + 10, healed - 5)}
+        assert during == {9 if j in cut_off else 9 - len(cut_off)}, (j, during)
+        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+            log = f.read()
+        if j not in cut_off:
+            assert "lost (left out of the target's roll call of step" in log
+            assert "alive again (named again in the target's roll call of step" in log
+    after = range(healed + 20, 251)
+    settled_steps_agree(by_agent, after)
+    for j in agents:
+        assert all(by_agent[j][k]["alive"] == "9" for k in after), j
+
+
 def test_tree_lockstep_partition_32_agents(work, domain):
     """Lock-step over the default tree (32 agents, fan-out 6), host 3 cut off for 3 s. The
     agents on host 2 whose parent is on host 3 move under another parent and back; after the

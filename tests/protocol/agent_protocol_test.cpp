@@ -1476,3 +1476,127 @@ TEST_CASE("A peer that becomes a member alone is logged as one", "[protocol]") {
   const auto& log = net.logs[1];
   CHECK(std::count(log.begin(), log.end(), std::string("agent 2 is a member; members now 2")) == 1);
 }
+
+// ---------------------------------------------------------------------------------------
+// Membership from the roll call (network.membership: roll_call, docs/PROTOCOL.md): no peer's
+// liveliness reaches an agent; only the target hears the agents' writers.
+
+namespace {
+
+bool Logged(ScriptedNetwork& net, AgentId id, const std::string& text) {
+  const auto& log = net.logs[id];
+  return std::any_of(log.begin(), log.end(), [&](const std::string& l) { return l.find(text) != std::string::npos; });
+}
+
+}  // namespace
+
+TEST_CASE("With membership from the roll call, a peer the target leaves out is lost at once and one "
+          "it names again is back, the steps complete and the agents agree",
+          "[protocol][roll_call]") {
+  // GIVEN three agents in lock-step whose members follow the target's roll call
+  ScriptedNetwork net(kThreeAgents);
+  net.SetRollCallMembership();
+  net.Start();
+  net.RunUntil(4);
+  REQUIRE(net.agents.at(1)->Members() == std::set<AgentId>{1, 2, 3});
+  // WHEN the target alone stops hearing agent 3 (the peers still do) for longer than the grace
+  const auto cut = [](const Envelope& e) { return e.from == 3 && e.to == deif::testing::kTarget; };
+  net.Pump(cut);
+  net.Liveliness(deif::testing::kTarget, 3, false);
+  net.AdvanceTime(net.config.network.liveliness_grace_s + 0.01);
+  net.RunUntil(7, cut);
+  // THEN agents 1 and 2 lose it by the roll call that leaves it out, without any liveliness
+  for (AgentId id : {1, 2}) {
+    INFO("agent " << id);
+    CHECK(Logged(net, id, "agent 3 lost (left out of the target's roll call of step "));
+    CHECK(net.agents.at(id)->Members() == std::set<AgentId>{1, 2});
+  }
+  // ... and write the steps without it complete (nobody waits for it)
+  CHECK(net.rows.at(1).back().fused == 2);
+  CHECK(net.rows.at(1).back().complete);
+  // WHEN the target hears it again
+  net.held.clear();  // what it missed meanwhile is not repaired (a state is kept last only)
+  net.Liveliness(deif::testing::kTarget, 3, true);
+  net.RunUntil(14);
+  // THEN the next roll call that names it makes it a member again, and all three agree
+  CHECK(Logged(net, 1, "agent 3 is alive again (named again in the target's roll call of step "));
+  CHECK(net.agents.at(1)->Members() == std::set<AgentId>{1, 2, 3});
+  CHECK(net.rows.at(1).back().fused == 3);
+  CHECK(AllAgreeAt(net, 14));
+  // AND no step was written short of its roll call
+  CHECK(net.agents.at(1)->counters().deadline_misses == 0);
+  CHECK(net.agents.at(2)->counters().deadline_misses == 0);
+}
+
+TEST_CASE("With membership from the roll call, a restart the target never saw as a loss is taken "
+          "once the old writer missed a step, and an impostor of a live peer is refused",
+          "[protocol][roll_call]") {
+  // GIVEN three agents in real time whose members follow the target's roll call
+  ScriptedNetwork net(kThreeAgentsRealTime);
+  net.SetRollCallMembership();
+  net.Start();
+  for (int i = 0; i < 3; ++i) {
+    net.Pump();
+    net.AdvanceTime(0.1);
+  }
+  net.Pump();
+  const StepIndex now_step = net.agents.at(1)->last_written_step();
+  REQUIRE(now_step >= 3);
+  // WHEN another writer sends agent 3's contribution to a step agent 3 itself contributed to
+  const protocol::ContributionMsg copy = ValidContributionFrom(net, 3, now_step);
+  net.agents.at(1)->OnContribution(copy, KeyOf(3, 7), net.now);
+  // THEN it is refused: agent 3's writer is bound and has missed no step
+  CHECK(net.agents.at(1)->counters().by_reason.count("rejected: agent_id_clash") == 1);
+  // WHEN agent 3 dies, and a new process takes its place within the grace of the lapse the
+  // target sees (so the target takes the new writer at once, and every roll call names 3)
+  net.Kill(3, /*lapse=*/false);
+  for (int i = 0; i < 3; ++i) {
+    net.AdvanceTime(0.1);
+    net.Pump();
+  }
+  net.Liveliness(deif::testing::kTarget, 3, false);
+  net.dead.erase(3);
+  net.incarnation[3] = 1;
+  net.agents[3] = net.MakeAgent(3, /*token=*/99);
+  net.agents.at(3)->Start(net.now);
+  for (int i = 0; i < 10; ++i) {
+    net.AdvanceTime(0.1);
+    net.Pump();
+  }
+  // THEN the peers take the new writer as agent 3 restarted, fuse it again and agree
+  CHECK(Logged(net, 1, "agent 3 lost (a new writer speaks for it, and the old one missed a step)"));
+  CHECK(Logged(net, 1, "agent 3 rejoined with a new writer"));
+  CHECK(net.agents.at(1)->Members() == std::set<AgentId>{1, 2, 3});
+  const StepIndex last = net.agents.at(1)->last_written_step();
+  CHECK(net.rows.at(1).back().fused == 3);
+  CHECK(AllAgreeAt(net, last));
+}
+
+TEST_CASE("With membership from the roll call, peers that leave the roll call together are logged "
+          "in one line",
+          "[protocol][roll_call]") {
+  // GIVEN four agents in lock-step whose members follow the target's roll call
+  ScriptedNetwork net("scenario: {steps: 30, dt_s: 0.1}\nagents: {count: 4}\n"
+                      "network: {history_steps: 8, step_timeout_s: 0.5}\n");
+  net.SetRollCallMembership();
+  net.Start();
+  net.RunUntil(3);
+  // WHEN the target stops hearing agents 3 and 4 at once (a host cut off)
+  const auto cut = [](const Envelope& e) {
+    return (e.from == 3 || e.from == 4) && e.to == deif::testing::kTarget;
+  };
+  net.Pump(cut);
+  net.Liveliness(deif::testing::kTarget, 3, false);
+  net.Liveliness(deif::testing::kTarget, 4, false);
+  net.AdvanceTime(net.config.network.liveliness_grace_s + 0.01);
+  net.RunUntil(6, cut);
+  // THEN agent 1 says so in one line, with the members left
+  const auto& log = net.logs[1];
+  const auto lost = std::count_if(log.begin(), log.end(), [](const std::string& l) {
+    return l.find(" lost (left out of the target's roll call of step ") != std::string::npos;
+  });
+  CHECK(lost == 1);
+  CHECK(Logged(net, 1, "agents 3 4 lost (left out of the target's roll call of step "));
+  CHECK(Logged(net, 1, "); members now 2"));
+  CHECK(net.agents.at(1)->Members() == std::set<AgentId>{1, 2});
+}

@@ -64,10 +64,20 @@ class ScriptedNetwork {
     for (auto& [id, agent] : agents) agent = MakeAgent(id);
   }
 
+  // AgentProtocol::Options::roll_call_membership of the agents made after it is set.
+  bool roll_call_membership = false;
+  // Makes every agent anew with membership from the roll call (before Start): no peer's
+  // liveliness reaches an agent then; tell only the target (Liveliness(kTarget, ...)).
+  void SetRollCallMembership() {
+    roll_call_membership = true;
+    for (auto& [id, agent] : agents) agent = MakeAgent(id);
+  }
+
   std::unique_ptr<AgentProtocol> MakeAgent(AgentId id, std::uint64_t token = 0) {
     AgentProtocol::Options options;
     options.run = kRun;
     options.peer_grace_s = peer_grace_s;
+    options.roll_call_membership = roll_call_membership;
     options.instance_token = token == 0 ? static_cast<std::uint64_t>(id) : token;
     return std::make_unique<AgentProtocol>(config, id, options);
   }

@@ -118,6 +118,19 @@ def test_goals_and_tables_from_made_up_figures():
     assert "_pingpong: skipped: made up_" in table
 
 
+def test_lockstep_table_sets_the_other_membership_beside_the_default():
+    """Over the tree the lock-step section runs the membership auto does not pick (all_pairs
+    from 28 agents on, roll_call below) beside the default; each is its own row after it."""
+    assert bench.other_membership(16 + 4) == "network.membership=roll_call"
+    assert bench.other_membership(64) == "network.membership=all_pairs"
+    res = made_up_results()
+    res["lockstep_other_membership"] = {"64": dict(res["lockstep"]["64"], last_step=59)}
+    table = bench.make_table(res)
+    rows = [line for line in table.splitlines() if line.startswith("| 64")]
+    assert len(rows) == 2 and rows[0].startswith("| 64 | 60/60") and \
+        rows[1].startswith("| 64, membership all_pairs | 59/60"), rows
+
+
 def test_a_section_that_did_not_run_leaves_no_goal():
     res = {"failure": made_up_results()["failure"]}
     bench.evaluate_goals(res)
