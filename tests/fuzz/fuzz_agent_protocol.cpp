@@ -95,9 +95,11 @@ bool Finite(const deif::Matrix2& m) { return m.allFinite(); }
 class Network {
  public:
   // peer_grace_s: AgentProtocol::Options::peer_grace_s (< 0: the config's grace); relayed:
-  // contributions arrive as a relay's batches do (AgentProtocol::OnContributions).
-  Network(const Config& config, double peer_grace_s, bool relayed)
-      : config_(config), peer_grace_s_(peer_grace_s), relayed_(relayed) {
+  // contributions arrive as a relay's batches do (AgentProtocol::OnContributions);
+  // roll_call: AgentProtocol::Options::roll_call_membership, and a process's death or restart
+  // reaches the agents by no liveliness but the target's.
+  Network(const Config& config, double peer_grace_s, bool relayed, bool roll_call = false)
+      : config_(config), peer_grace_s_(peer_grace_s), relayed_(relayed), roll_call_(roll_call) {
     for (AgentId id = 1; id <= config.agents.count; ++id) StartAgent(id);
     StartTarget(std::nullopt);
   }
@@ -165,7 +167,7 @@ class Network {
                                 [&](const Envelope& e) { return e.from == key; }),
                  queue_.end());
     for (int reader = 0; reader <= config_.agents.count; ++reader) {
-      if (reader != node) Liveliness(reader, key, false);
+      if (reader != node && Hears(reader, node)) Liveliness(reader, key, false);
     }
   }
   // A dead process starts again with new writers.
@@ -179,9 +181,12 @@ class Network {
       StartAgent(node);
     }
     for (int reader = 0; reader <= config_.agents.count; ++reader) {
-      if (reader != node) Liveliness(reader, Key(node), true);
+      if (reader != node && Hears(reader, node)) Liveliness(reader, Key(node), true);
     }
   }
+  // Whether `reader` hears the liveliness of `node`'s writers: with the roll call an agent
+  // hears only the target's.
+  bool Hears(int reader, int node) const { return !roll_call_ || reader == kTarget || node == kTarget; }
 
   void Inject(int to, const SenderKey& from, Message message) {
     Deliver(Envelope{to, from, std::move(message)});
@@ -211,6 +216,7 @@ class Network {
     options.run = kRun;
     options.instance_token = 1000u * static_cast<unsigned>(incarnation_[id]) + static_cast<unsigned>(id);
     options.peer_grace_s = peer_grace_s_;
+    options.roll_call_membership = roll_call_;
     agents_[id] = std::make_unique<AgentProtocol>(config_, id, options);
     agents_[id]->Start(now_);
     Collect(id);
@@ -305,6 +311,7 @@ class Network {
   const Config& config_;
   const double peer_grace_s_;
   const bool relayed_;
+  const bool roll_call_;
   std::map<AgentId, std::unique_ptr<AgentProtocol>> agents_;
   std::unique_ptr<TargetProtocol> target_;
   std::map<int, int> incarnation_;
@@ -461,7 +468,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const int nodes = config.agents.count + 1;
   const std::uint8_t mode = in.Byte();
   constexpr double kPeerGraces[] = {-1.0, 0.3, 1.0, 5.0};
-  Network net(config, kPeerGraces[mode % 4], (mode & 4u) != 0);
+  Network net(config, kPeerGraces[mode % 4], (mode & 4u) != 0, (mode & 8u) != 0);
 
   while (!in.empty()) {
     const std::uint8_t op = in.Byte();
