@@ -1073,7 +1073,8 @@ bool AgentProtocol::AcceptIdentity(const ContributionMsg& msg, const SenderKey& 
   if (peer.alive && options_.roll_call_membership && msg.step > peer.last_step + 1) {
     // No liveliness says that the bound writer is gone (docs/PROTOCOL.md, "Membership from
     // the roll call"): a writer that speaks for a step past one the bound writer missed is
-    // the agent restarted. (A restart outran by the target keeps the id in every roll call.)
+    // the agent restarted. (A restart that the target saw within its grace of the old
+    // writer's lapse keeps the id in every roll call.)
     ApplyLiveliness(*peer.writer, false, now_s, "a new writer speaks for it, and the old one missed a step");
   }
   if (peer.alive) {
