@@ -159,6 +159,12 @@ int AgentNode::Run() {
       const std::optional<double> relay = tree_->NextDeadline();
       if (relay && (!wake || *relay < *wake)) wake = relay;
     }
+    if (const std::optional<double> waited = protocol_.WaitedForFromS()) {
+      // Its look at the processes of the members a lock-step step waits for is due then, and
+      // every kEndedCheckSuspectS after (EndedAgents below): the loop must wake for it.
+      const double look_s = std::max(*waited, dds::ToSeconds(dds::Clock::now()) + kEndedCheckSuspectS);
+      if (!wake || look_s < *wake) wake = look_s;
+    }
     const dds::Clock::time_point wake_by = dds::WakeBy(wake, kMaxWaitS);
     const double wait_from_s = dds::ToSeconds(dds::Clock::now());
     const std::vector<dds::Event> events = node_.Wait(wake_by);
@@ -194,10 +200,12 @@ int AgentNode::Run() {
       }
     }
     for (const dds::Event& event : events) Dispatch(event, now_s);
-    // More often while the target's roll call leaves out a member: the target may have seen
-    // its process end already.
+    // More often while the target's roll call leaves out a member (the target may have seen
+    // its process end already), or a lock-step step waits long for a member (it may have
+    // been killed in the step, and the target waits for this agent).
     for (const protocol::SenderKey& ended :
-         node_.EndedAgents(kEndedCheckS, [this] { return protocol_.MembersOutOfRollCall(); }, kEndedCheckSuspectS)) {
+         node_.EndedAgents(kEndedCheckS, [this] { return protocol_.MembersOutOfRollCall(); }, kEndedCheckSuspectS,
+                           [this, now_s] { return protocol_.MembersWaitedFor(now_s); })) {
       protocol_.OnProcessEnded(ended, now_s);
     }
     ReportMatches(now_s);

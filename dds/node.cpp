@@ -1454,7 +1454,8 @@ std::vector<int> Node::ShmPortsListened() const {
 
 std::vector<protocol::SenderKey> Node::EndedAgents(double every_s,
                                                    const std::function<std::set<AgentId>()>& suspects,
-                                                   double suspects_every_s) {
+                                                   double suspects_every_s,
+                                                   const std::function<std::set<AgentId>()>& waited_for) {
   Impl& d = *impl_;
   if (!d.config.network.process_watch || d.participant == nullptr) return {};
   const auto now = Clock::now();
@@ -1462,7 +1463,7 @@ std::vector<protocol::SenderKey> Node::EndedAgents(double every_s,
     return now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
   };
   const bool all = now >= d.next_ended_check;
-  if (!all && (!suspects || now < d.next_suspects_check)) return {};
+  if (!all && ((!suspects && !waited_for) || now < d.next_suspects_check)) return {};
   if (all) {
     // Spread over the interval, so that the processes of a run do not all look at once.
     static thread_local std::minstd_rand jitter{std::random_device{}()};
@@ -1476,14 +1477,24 @@ std::vector<protocol::SenderKey> Node::EndedAgents(double every_s,
   // Due whether or not anyone is left out: working out who is costs a pass over the members
   // (not at every pass of the agent's loop).
   d.next_suspects_check = after(suspects_every_s);
-  const std::set<AgentId> ids = suspects();
-  if (ids.empty()) return {};
-  std::set<protocol::SenderKey> only;
+  const std::set<AgentId> ids = suspects ? suspects() : std::set<AgentId>{};
+  const std::set<AgentId> waited = waited_for ? waited_for() : std::set<AgentId>{};
+  if (ids.empty() && waited.empty()) return {};
+  std::set<protocol::SenderKey> only, twice;
   for (const auto& [key, id] : d.ended_watch_agents) {
-    if (ids.count(id) > 0) only.insert(key);
+    if (ids.count(id) > 0) {
+      only.insert(key);
+    } else if (waited.count(id) > 0) {
+      twice.insert(key);
+    }
   }
-  // One free look: the target, which looked twice, left them out of its roll call.
-  return d.ended_watch.Check(only, 1);
+  // One free look: the target, which looked twice, left them out of its roll call. Two for
+  // the others (a listener that makes its own port anew lets go of its lock for a moment).
+  std::vector<protocol::SenderKey> ended = only.empty() ? std::vector<protocol::SenderKey>{} : d.ended_watch.Check(only, 1);
+  if (!twice.empty()) {
+    for (const protocol::SenderKey& key : d.ended_watch.Check(twice, 2)) ended.push_back(key);
+  }
+  return ended;
 }
 
 std::vector<int> Node::PortsLost() {

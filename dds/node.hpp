@@ -154,9 +154,12 @@ class Node {
   // reports participants on other hosts or without shared memory, nor with
   // network.process_watch: false.
   // `suspects` is asked only when their look is due (it runs in the application's loop).
+  // `waited_for` (in between too, as often as `suspects`): agents whose end is looked for
+  // without another process having seen it, so two free looks in a row.
   std::vector<protocol::SenderKey> EndedAgents(double every_s,
                                                const std::function<std::set<AgentId>()>& suspects = nullptr,
-                                               double suspects_every_s = 0.0);
+                                               double suspects_every_s = 0.0,
+                                               const std::function<std::set<AgentId>()>& waited_for = nullptr);
   // Those of them that a peer replaced under this process (it removed the port's segment and
   // made a new one, as Fast DDS 2.9.1 does with a port it takes for a dead process's) and
   // that stayed replaced for a whole port check (dds/shm_ports.hpp): every peer that opens

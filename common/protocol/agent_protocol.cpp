@@ -283,6 +283,29 @@ std::set<AgentId> AgentProtocol::MembersOutOfRollCall() const {
   return out;
 }
 
+std::optional<double> AgentProtocol::WaitedForFromS() const {
+  if (RealTime() || !open_ || records_.empty() || finished_) return std::nullopt;
+  const Record& r = records_.rbegin()->second;
+  if (!r.roll_call) return std::nullopt;
+  std::size_t missing = 0;
+  for (AgentId id : *r.roll_call) {
+    if (id != id_ && r.held.count(id) == 0 && ++missing > kMaxWaitedFor) return std::nullopt;
+  }
+  if (missing == 0) return std::nullopt;
+  return r.start_s + kSuspectAfterS;
+}
+
+std::set<AgentId> AgentProtocol::MembersWaitedFor(double now_s) const {
+  std::set<AgentId> out;
+  const std::optional<double> from = WaitedForFromS();
+  if (!from || now_s < *from) return out;
+  const Record& r = records_.rbegin()->second;
+  for (AgentId id : *r.roll_call) {
+    if (id != id_ && r.held.count(id) == 0) out.insert(id);
+  }
+  return out;
+}
+
 const std::vector<AgentId>* AgentProtocol::NewestRollCall(StepIndex* step) const {
   // Of a range waiting, or of the newest step.
   if (!pending_ranges_.empty() && !pending_ranges_.rbegin()->second.msg.roll_call.empty()) {

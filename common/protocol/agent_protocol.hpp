@@ -131,6 +131,19 @@ class AgentProtocol {
   // out (the target saw them gone, or they are catching up): the transport then looks for
   // the end of their processes more often (docs/PROTOCOL.md, "A process that ended").
   std::set<AgentId> MembersOutOfRollCall() const;
+  // In lock-step, the members of the open step's roll call whose contribution has not come
+  // kSuspectAfterS after the step opened: a peer killed during a step is waited for by every
+  // agent, and the target waits for the agents, so no roll call can leave it out; the
+  // transport looks for the end of their processes often too (docs/PROTOCOL.md, "A process
+  // that ended"). Empty in real time, where the deadline ends the wait.
+  std::set<AgentId> MembersWaitedFor(double now_s) const;
+  // When MembersWaitedFor becomes non-empty if nothing comes meanwhile (nullopt: it will not).
+  std::optional<double> WaitedForFromS() const;
+  static constexpr double kSuspectAfterS = 0.1;
+  // More missing than this is a slow step or a batch of the tree still on its way, not a
+  // death: nobody is waited for then (looking at dozens of processes every few hundredths of
+  // a second would slow a starved host further).
+  static constexpr std::size_t kMaxWaitedFor = 4;
   // This process itself was away (frozen or starved; its loop stood still) until now: a
   // lapse of a peer's or the target's writer within hold_s from now counts only if it lasts
   // until then. Its peers were not gone; it read nothing (docs/PROTOCOL.md, "Slow is not

@@ -152,6 +152,43 @@ def test_kill_seen_by_its_locks(work, domain):
     assert worst == 0.0, f"largest difference from the oracle {worst:.3g}"
 
 
+def test_killed_in_a_step(work, domain):
+    """kill -9 of agent 3 by hand while the lock-step runs (not at a step the target holds for
+    a scripted fault), with a liveliness lease of 3 s and a step timeout of 5 s: the step in
+    flight waits for agent 3's contribution at every survivor, and the target waits for their
+    states, so no roll call can leave agent 3 out. Each survivor looks at the processes of the
+    members it still waits for 0.1 s into the step (docs/PROTOCOL.md, "A process that ended"),
+    sees agent 3's end and writes the step within a second, not at its timeout (or, killed
+    between its contribution and its state, agent 3 is left out of the target's next roll
+    call and no step waits for it); the run goes on with three."""
+    lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=100000, domain=domain,
+                            overrides=["network.liveliness_lease_s=3.0", "network.step_timeout_s=5.0"],
+                            progress=False)
+    try:
+        lau.start()
+        lau.wait_for_step(300)
+        victim = lau.procs["agent_3"]
+        victim.expected_death = True
+        victim.popen.send_signal(signal.SIGKILL)
+        killed_at = lau.current_step()
+        lau.wait_for_step(killed_at + 200)
+    finally:
+        lau.terminate_all()
+        res = lau.finish()
+    for j in (1, 2, 4):
+        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
+            log = f.read()
+        assert "agent 3 lost (its process ended" in log, log_excerpt(res.out_dir, j)
+        # Killed during a step, it is waited for; killed after its contribution and before
+        # its state, the target waits for it instead and leaves it out of the next roll call.
+        line = re.search(r"fused without every member of the roll call \(missing: 3\) after ([\d.]+) s \(([^)]*)\)",
+                         log)
+        assert not line or (line.group(2) == "a member was lost in the step" and float(line.group(1)) < 1.0), \
+            log_excerpt(res.out_dir, j)
+        after = [r for r in rows(res.out_dir, j) if int(r["step"]) > killed_at + 10]
+        assert len(after) > 100 and all(r["fused"] == "3" for r in after), j
+
+
 def test_down_to_two(work, domain):
     """N=5 killed down to 2: the two survivors equal the simulation and end pi/2 apart."""
     faults = [launcher.Fault(60, "kill", 5), launcher.Fault(120, "kill", 2), launcher.Fault(180, "kill", 4)]

@@ -138,40 +138,15 @@ def test_tree_lockstep_10_percent_loss(work, domain):
             assert r["complete"] == "1" and r["fused"] == "9", (j, r["step"])
 
 
-def test_tree_partition_and_heal(work, domain):
-    """Real time over the tree: host 3 (the even agents, half of every level's relays) is cut
-    off for 3 s. Every agent writes every step; each side's tree holds its own members
-    only; after the heal one tree holds all nine again and the settled steps agree exactly
-    (as in test_partition_and_heal)."""
+def tree_partition_and_heal(work, domain, membership):
+    """Real time over the tree, 9 agents on hosts 2 and 3, host 3 (the even agents, half of
+    every level's relays) cut off for 3 s from step 80, with network.membership
+    `membership`. Asserts that every agent writes every step, and that after the heal every
+    agent counts all nine again and the settled steps agree exactly (as in
+    test_partition_and_heal); returns (run folder, the cut-off agents, during), `during`
+    giving each agent's set of member counts from 10 steps after the cut to 5 before the heal."""
     res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=250, hosts=3,
-                       overrides=TREE + REALTIME, partitions=[launcher.Partition(80, 3.0, 3)],
-                       progress=False)
-    assert res.ok, res.why_not_ok()
-    agents = range(1, 10)
-    assert_every_step_written(res.out_dir, agents, 250)
-    p = res.summary["partitions"][0]
-    healed = p["healed_at_step"]
-    assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
-    by_agent = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in agents}
-    cut_off = [j for j in agents if j % 2 == 0]
-    for j in agents:  # during the cut: the side's own members (target side 5, cut-off side 4)
-        during = {int(by_agent[j][k]["alive"]) for k in range(p["cut_at_step"] + 10, healed - 5)}
-        assert during == {len(cut_off) if j in cut_off else 9 - len(cut_off)}, (j, during)
-    after = range(healed + 20, 251)
-    settled_steps_agree(by_agent, after)
-    for j in agents:
-        assert all(by_agent[j][k]["alive"] == "9" for k in after), j
-
-
-def test_tree_roll_call_partition_and_heal(work, domain):
-    """Real time over the tree with membership from the roll call (network.membership:
-    roll_call, docs/PROTOCOL.md, "Membership from the roll call"): host 3 (the even agents) cut
-    off for 3 s. The target's side loses them by the target's roll calls, with no liveliness
-    of theirs (the target's state readers' lease and grace); the cut-off side hears no roll
-    call and keeps its members. Every agent writes every step, and after the heal every agent
-    counts all nine again and the settled steps agree exactly."""
-    res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=9, domain=domain, steps=250, hosts=3,
-                       overrides=TREE + REALTIME + ["network.membership=roll_call"],
+                       overrides=TREE + REALTIME + [f"network.membership={membership}"],
                        partitions=[launcher.Partition(80, 3.0, 3)], progress=False)
     assert res.ok, res.why_not_ok()
     agents = range(1, 10)
@@ -180,19 +155,36 @@ def test_tree_roll_call_partition_and_heal(work, domain):
     healed = p["healed_at_step"]
     assert p["cut_at_step"] >= 80 and healed > p["cut_at_step"] + 20
     by_agent = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in agents}
-    cut_off = [j for j in agents if j % 2 == 0]
-    for j in agents:
-        during = {int(by_agent[j][k]["alive"]) for k in range(p["cut_at_step"] + 10, healed - 5)}
-        assert during == {9 if j in cut_off else 9 - len(cut_off)}, (j, during)
-        with open(os.path.join(res.out_dir, "logs", f"agent-{j}.log")) as f:
-            log = f.read()
-        if j not in cut_off:
-            assert "lost (left out of the target's roll call of step" in log
-            assert "alive again (named again in the target's roll call of step" in log
+    during = {j: {int(by_agent[j][k]["alive"]) for k in range(p["cut_at_step"] + 10, healed - 5)} for j in agents}
     after = range(healed + 20, 251)
     settled_steps_agree(by_agent, after)
     for j in agents:
         assert all(by_agent[j][k]["alive"] == "9" for k in after), j
+    return res.out_dir, [j for j in agents if j % 2 == 0], during
+
+
+def test_tree_partition_and_heal(work, domain):
+    """The tree with every pair's liveliness (tree_partition_and_heal): during the cut each
+    side's tree holds its own members only, 5 on the target's side and 4 on the other."""
+    _, cut_off, during = tree_partition_and_heal(work, domain, "all_pairs")
+    for j, counts in during.items():
+        assert counts == {len(cut_off) if j in cut_off else 9 - len(cut_off)}, (j, counts)
+
+
+def test_tree_roll_call_partition_and_heal(work, domain):
+    """The tree with membership from the roll call (tree_partition_and_heal; docs/PROTOCOL.md,
+    "Membership from the roll call"): the target's side loses the cut-off agents by the
+    target's roll calls, with no liveliness of theirs (the target's state readers' lease and
+    grace), and takes them back by the same; the cut-off side hears no roll call and keeps
+    its members."""
+    run, cut_off, during = tree_partition_and_heal(work, domain, "roll_call")
+    for j, counts in during.items():
+        assert counts == {9 if j in cut_off else 9 - len(cut_off)}, (j, counts)
+        with open(os.path.join(run, "logs", f"agent-{j}.log")) as f:
+            log = f.read()
+        if j not in cut_off:
+            assert "lost (left out of the target's roll call of step" in log
+            assert "alive again (named again in the target's roll call of step" in log
 
 
 def test_tree_lockstep_partition_32_agents(work, domain):

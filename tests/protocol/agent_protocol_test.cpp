@@ -1600,3 +1600,53 @@ TEST_CASE("With membership from the roll call, peers that leave the roll call to
   CHECK(Logged(net, 1, "); members now 2"));
   CHECK(net.agents.at(1)->Members() == std::set<AgentId>{1, 2});
 }
+
+TEST_CASE("In lock-step a member whose contribution the open step still lacks after a while is "
+          "waited for (its process is looked at often), and no longer once it came",
+          "[protocol]") {
+  // GIVEN three agents in lock-step, and agent 3's contribution to step 1 held from agent 1
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  const auto from3to1 = [](const Envelope& e) { return IsContribution(e, 3, 1, 1); };
+  net.Pump(from3to1);
+  REQUIRE(net.held.size() == 1);
+  REQUIRE(net.agents.at(1)->last_written_step() == 0);
+  // WHEN the step has just opened THEN nobody is waited for yet, from kSuspectAfterS on
+  CHECK(net.agents.at(1)->MembersWaitedFor(net.now).empty());
+  REQUIRE(net.agents.at(1)->WaitedForFromS());
+  CHECK(*net.agents.at(1)->WaitedForFromS() == Approx(net.now + protocol::AgentProtocol::kSuspectAfterS));
+  // WHEN it has waited for agent 3 longer than kSuspectAfterS (within its step timeout)
+  net.AdvanceTime(protocol::AgentProtocol::kSuspectAfterS + 0.01);
+  REQUIRE(net.agents.at(1)->last_written_step() == 0);
+  // THEN agent 3 is waited for, and agent 2, whose contribution came, is not
+  CHECK(net.agents.at(1)->MembersWaitedFor(net.now) == std::set<AgentId>{3});
+  // WHEN the contribution comes THEN the step is written and nobody is waited for
+  net.ReleaseHeld();
+  net.Pump();
+  CHECK(net.agents.at(1)->last_written_step() >= 1);
+  CHECK(net.agents.at(1)->MembersWaitedFor(net.now + protocol::AgentProtocol::kSuspectAfterS / 2).empty());
+}
+
+TEST_CASE("In lock-step nobody is waited for while more than a few members' contributions are "
+          "missing (a slow step, or a batch on its way), nor in real time",
+          "[protocol]") {
+  // GIVEN seven agents in lock-step, and every contribution to agent 1 held
+  ScriptedNetwork net("scenario: {steps: 30, dt_s: 0.1}\nagents: {count: 7}\n"
+                      "network: {history_steps: 8, step_timeout_s: 0.5}\n");
+  HoldContributionsToAgent1(net);
+  net.Pump([](const Envelope& e) { return e.to == 1 && std::holds_alternative<protocol::ContributionMsg>(e.message); });
+  REQUIRE(net.held.size() == 6);
+  // WHEN step 1 has waited longer than kSuspectAfterS for six members
+  net.AdvanceTime(protocol::AgentProtocol::kSuspectAfterS + 0.01);
+  REQUIRE(net.agents.at(1)->last_written_step() == 0);
+  // THEN nobody is waited for (more than kMaxWaitedFor missing)
+  CHECK_FALSE(net.agents.at(1)->WaitedForFromS());
+  CHECK(net.agents.at(1)->MembersWaitedFor(net.now).empty());
+  // AND GIVEN three agents in real time, one contribution to agent 1 late
+  ScriptedNetwork rt(kThreeAgentsRealTime);
+  rt.Start();
+  rt.Pump([](const Envelope& e) { return IsContribution(e, 3, 1, 1); });
+  // THEN nobody is waited for there either: the deadline ends the wait
+  CHECK_FALSE(rt.agents.at(1)->WaitedForFromS());
+  CHECK(rt.agents.at(1)->MembersWaitedFor(rt.now + 1.0).empty());
+}
