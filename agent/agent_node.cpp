@@ -159,7 +159,7 @@ int AgentNode::Run() {
       const std::optional<double> relay = tree_->NextDeadline();
       if (relay && (!wake || *relay < *wake)) wake = relay;
     }
-    if (const std::optional<double> waited = protocol_.WaitedForFromS()) {
+    if (const std::optional<double> waited = WaitedForFromS()) {
       // Its look at the processes of the members a lock-step step waits for is due then, and
       // every kEndedCheckSuspectS after (EndedAgents below): the loop must wake for it.
       const double look_s = std::max(*waited, dds::ToSeconds(dds::Clock::now()) + kEndedCheckSuspectS);
@@ -205,7 +205,7 @@ int AgentNode::Run() {
     // been killed in the step, and the target waits for this agent).
     for (const protocol::SenderKey& ended :
          node_.EndedAgents(kEndedCheckS, [this] { return protocol_.MembersOutOfRollCall(); }, kEndedCheckSuspectS,
-                           [this, now_s] { return protocol_.MembersWaitedFor(now_s); })) {
+                           [this, now_s] { return WaitedFor(now_s); })) {
       protocol_.OnProcessEnded(ended, now_s);
     }
     ReportMatches(now_s);
@@ -499,6 +499,23 @@ void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
     node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
     node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);
   }
+}
+
+std::set<AgentId> AgentNode::WaitedFor(double now_s) const {
+  std::set<AgentId> waited = protocol_.MembersWaitedFor(now_s);
+  if (tree_) {
+    for (AgentId child : tree_->ChildrenWaitedFor(now_s, protocol::AgentProtocol::kSuspectAfterS)) waited.insert(child);
+  }
+  return waited;
+}
+
+std::optional<double> AgentNode::WaitedForFromS() const {
+  std::optional<double> from = protocol_.WaitedForFromS();
+  if (tree_) {
+    const std::optional<double> relay = tree_->ChildrenWaitedForFromS(protocol::AgentProtocol::kSuspectAfterS);
+    if (relay && (!from || *relay < *from)) from = relay;
+  }
+  return from;
 }
 
 double AgentNode::AwayAfterS() const {

@@ -68,6 +68,12 @@ class AgentNode : public dds::Application {
   // Whether the relay endpoints of this agent's place in the tree matched their other ends:
   // its parent's (one each way) and its children's (docs/SCALING.md).
   bool TreeLinksMatched() const;
+  // In lock-step, the peers whose processes this agent looks at often because a step waits
+  // for them: members of the open step (AgentProtocol::MembersWaitedFor) and, in the tree,
+  // children whose batch its relay waits for (TreeExchange::ChildrenWaitedFor); and from
+  // when on.
+  std::set<AgentId> WaitedFor(double now_s) const;
+  std::optional<double> WaitedForFromS() const;
   // network.membership: roll_call (docs/PROTOCOL.md, "Membership from the roll call").
   // With membership from the roll call: this agent and the peers whose participants it sees
   // (ReportMatches), as of ParticipantsVersion peers_up_version_.

@@ -299,6 +299,30 @@ std::set<AgentId> TreeExchange::Expected(const StepState& s) const {
   return expected;
 }
 
+std::optional<double> TreeExchange::ChildrenWaitedForFromS(double after_s) const {
+  if (config_.scenario.mode != StepMode::kLockStep || unflushed_.empty() || place_.children.empty()) {
+    return std::nullopt;
+  }
+  const auto it = steps_.find(*unflushed_.begin());
+  if (it == steps_.end()) return std::nullopt;
+  const StepState& s = it->second;
+  for (AgentId child : Expected(s)) {
+    if (child != options_.self && s.reported.count(child) == 0) return s.first_s + after_s;
+  }
+  return std::nullopt;
+}
+
+std::set<AgentId> TreeExchange::ChildrenWaitedFor(double now_s, double after_s) const {
+  std::set<AgentId> out;
+  const std::optional<double> from = ChildrenWaitedForFromS(after_s);
+  if (!from || now_s < *from) return out;
+  const StepState& s = steps_.at(*unflushed_.begin());
+  for (AgentId child : Expected(s)) {
+    if (child != options_.self && s.reported.count(child) == 0) out.insert(child);
+  }
+  return out;
+}
+
 void TreeExchange::TryFlush(StepIndex step, double now_s) {
   auto it = steps_.find(step);
   if (it == steps_.end() || Flushed(step)) return;

@@ -123,6 +123,14 @@ class TreeExchange {
   void OnBatch(const BatchMsg& batch, double now_s);
   void OnTimer(double now_s);
 
+  // In lock-step, the children whose batch of the oldest step this relay has not sent on yet
+  // has not come after_s after it first heard of the step: a child killed during a step
+  // would hold the step back by this relay's whole wait (a quarter of step_timeout_s), so the
+  // transport looks for the end of their processes (docs/PROTOCOL.md, "A process that
+  // ended"). Empty in real time, where the wait is short.
+  std::set<AgentId> ChildrenWaitedFor(double now_s, double after_s) const;
+  // When ChildrenWaitedFor becomes non-empty if nothing comes meanwhile (nullopt: it will not).
+  std::optional<double> ChildrenWaitedForFromS(double after_s) const;
   // When OnTimer should next be called (nullopt: only events move it on).
   std::optional<double> NextDeadline() const;
   // The actions so far. What came down from the parent, and what came late, goes on here:

@@ -780,3 +780,34 @@ TEST_CASE("What a relay keeps stays bounded however long the run", "[protocol][t
   CHECK(root_sent == 2000);  // one down batch a step
   CHECK(leaf_sent == 2000);  // one up batch a step
 }
+
+TEST_CASE("In lock-step a relay names the children whose batch it still waits for after a while, "
+          "and none in real time",
+          "[protocol][tree]") {
+  // GIVEN 7 agents in lock-step, fan-out 2: 1 > {2, 3}, 2 > {4, 5}, 3 > {6, 7}; agent 5 dead
+  const deif::Config lockstep = deif::ParseConfig(
+      "agents: {count: 7}\nnetwork: {exchange: tree, tree_fanout: 2, step_timeout_s: 2}\n", "inline");
+  Network net(lockstep, Range(1, 7));
+  net.dead.insert(5);
+  // WHEN step 1 begins at t = 1 and every live agent contributes
+  net.Step(1, Range(1, 7), 1.0);
+  const TreeExchange& relay = *net.agents.at(2);
+  // THEN relay 2 holds its batch (it waits for 5), and names 5 once it has waited 0.1 s
+  REQUIRE(relay.ChildrenWaitedForFromS(0.1));
+  CHECK(*relay.ChildrenWaitedForFromS(0.1) == Approx(1.1));
+  CHECK(relay.ChildrenWaitedFor(1.05, 0.1).empty());
+  CHECK(relay.ChildrenWaitedFor(1.2, 0.1) == std::set<AgentId>{5});
+  // ... and relay 3, whose children both sent theirs, names nobody
+  CHECK_FALSE(net.agents.at(3)->ChildrenWaitedForFromS(0.1));
+  // WHEN the members lose 5 (its process ended) THEN relay 2 waits for nobody and sends on
+  std::set<AgentId> members{1, 2, 3, 4, 6, 7};
+  net.SetMembers(members, 1.3);
+  net.Tick(1.3);
+  CHECK(relay.ChildrenWaitedFor(1.4, 0.1).empty());
+  for (AgentId a : members) CHECK(net.delivered[a][{1, 4}] == (a == 4 ? 0 : 1));
+  // AND GIVEN the same in real time THEN no relay names anyone: its wait is short
+  Network rt(ConfigFor(7, 2), Range(1, 7));
+  rt.dead.insert(5);
+  rt.Step(1, Range(1, 7), 1.0);
+  CHECK_FALSE(rt.agents.at(2)->ChildrenWaitedForFromS(0.1));
+}
