@@ -75,11 +75,11 @@ class AgentNode : public dds::Application {
   std::set<AgentId> WaitedFor(double now_s) const;
   std::optional<double> WaitedForFromS() const;
   // network.membership: roll_call (docs/PROTOCOL.md, "Membership from the roll call").
+  bool RollCallMembership() const { return EffectiveMembership(config_) == MembershipKind::kRollCall; }
   // With membership from the roll call: this agent and the peers whose participants it sees
   // (ReportMatches), as of ParticipantsVersion peers_up_version_.
   int peers_up_ = 1;
   std::optional<std::uint64_t> peers_up_version_;
-  bool RollCallMembership() const { return EffectiveMembership(config_) == MembershipKind::kRollCall; }
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason, and
   // how long samples took to reach it.
   void WriteCounters() const;
