@@ -806,7 +806,8 @@ TEST_CASE("In lock-step a relay names the children whose batch it still waits fo
   CHECK(relay.ChildrenWaitedFor(1.4, 0.1).empty());
   for (AgentId a : members) CHECK(net.delivered[a][{1, 4}] == (a == 4 ? 0 : 1));
   // AND GIVEN the same in real time THEN no relay names anyone: its wait is short
-  Network rt(ConfigFor(7, 2), Range(1, 7));
+  const deif::Config realtime = ConfigFor(7, 2);  // the network keeps a reference to it
+  Network rt(realtime, Range(1, 7));
   rt.dead.insert(5);
   rt.Step(1, Range(1, 7), 1.0);
   CHECK_FALSE(rt.agents.at(2)->ChildrenWaitedForFromS(0.1));
