@@ -65,6 +65,7 @@ protocol::TargetProtocol::Options ProtocolOptions(const dds::ProcessContext& con
     out.start_step = std::max(out.start_step.value_or(0), floor);
   }
   out.hold_for_faults = options.hold_for_faults;
+  out.start_grace_s = dds::EffectiveTimings(context.config).peer_grace_s;
   return out;
 }
 

@@ -67,7 +67,9 @@ void TargetProtocol::OnState(const StateMsg& msg, const SenderKey& from, double 
 }
 
 void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
-  if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s)) {
+  const double grace_s = started() || options_.start_grace_s < 0.0 ? config_.network.liveliness_grace_s
+                                                                   : options_.start_grace_s;
+  if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s, grace_s)) {
     ApplyLiveliness(writer, *change, now_s);
   }
 }

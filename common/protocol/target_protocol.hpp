@@ -55,6 +55,12 @@ class TargetProtocol {
     RunToken run = 1;
     std::optional<StepIndex> start_step;  // a restarted target: resume here at the earliest
     bool hold_for_faults = false;         // hold steps with faults until OnGo (lock-step)
+    // Before the run begins, a lapse of an agent's state writer is held this long before it
+    // counts as a loss (< 0: network.liveliness_grace_s, as once the run has begun). Longer
+    // where those writers renew rarely (dds::Timings::peer_grace_s): in the start storm of a
+    // large run a renewal comes late, and each false loss held the start back
+    // (docs/PROTOCOL.md, "The target").
+    double start_grace_s = -1.0;
   };
 
   // The config must outlive the protocol.

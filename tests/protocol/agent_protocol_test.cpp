@@ -1650,3 +1650,37 @@ TEST_CASE("In lock-step nobody is waited for while more than a few members' cont
   CHECK_FALSE(rt.agents.at(1)->WaitedForFromS());
   CHECK(rt.agents.at(1)->MembersWaitedFor(rt.now + 1.0).empty());
 }
+
+namespace {
+
+// Whether a target that waits for its agents (two of three present) takes agent 2 for lost
+// when agent 2's state writer lapses for 0.5 s, with Options::start_grace_s `start_grace_s`.
+bool LostBeforeTheStart(double start_grace_s) {
+  const deif::Config config = deif::ParseConfig("agents: {count: 3}\n", "inline");
+  protocol::TargetProtocol::Options options;
+  options.run = ScriptedNetwork::kRun;
+  options.start_grace_s = start_grace_s;
+  protocol::TargetProtocol target(config, options);
+  target.Start(0.0);
+  for (AgentId id : {1, 2}) target.OnState(StateOfAgent(id, 0, 3), KeyOf(id), 0.0);
+  target.OnWriterLiveliness(KeyOf(2), false, 0.1);
+  target.OnTimer(0.6);
+  target.OnWriterLiveliness(KeyOf(2), true, 0.6);
+  target.OnTimer(0.7);
+  REQUIRE_FALSE(target.started());  // agent 3 never came
+  for (const auto& action : target.TakeActions()) {
+    const auto* log = std::get_if<protocol::Log>(&action);
+    if (log != nullptr && log->text.find("agent 2 lost") != std::string::npos) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+TEST_CASE("Before the run begins the target holds an agent's lapse for its start grace",
+          "[protocol]") {
+  // With the configured grace (0.2 s) a 0.5 s lapse is a loss; with a start grace of 1 s it
+  // is forgiven (a renewal late in the start storm of a large run).
+  CHECK(LostBeforeTheStart(-1.0));
+  CHECK_FALSE(LostBeforeTheStart(1.0));
+}
