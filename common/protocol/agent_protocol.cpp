@@ -25,6 +25,11 @@ std::string Join(const std::vector<AgentId>& ids) {
   return out;
 }
 
+// "agent 3" or "agents 2 4 6": several peers in one line of the log.
+std::string AgentsNamed(const std::vector<AgentId>& ids) {
+  return (ids.size() == 1 ? "agent " : "agents ") + Join(ids);
+}
+
 std::string FormatSeconds(double s) {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%.3f", s);
@@ -283,27 +288,28 @@ std::set<AgentId> AgentProtocol::MembersOutOfRollCall() const {
   return out;
 }
 
-std::optional<double> AgentProtocol::WaitedForFromS() const {
-  if (RealTime() || !open_ || records_.empty() || finished_) return std::nullopt;
+std::vector<AgentId> AgentProtocol::MissingInOpenStep() const {
+  std::vector<AgentId> missing;
+  if (RealTime() || !open_ || records_.empty() || finished_) return missing;
   const Record& r = records_.rbegin()->second;
-  if (!r.roll_call) return std::nullopt;
-  std::size_t missing = 0;
+  if (!r.roll_call) return missing;
   for (AgentId id : *r.roll_call) {
-    if (id != id_ && r.held.count(id) == 0 && ++missing > kMaxWaitedFor) return std::nullopt;
+    if (id == id_ || r.held.count(id) > 0) continue;
+    if (missing.size() == kMaxWaitedFor) return {};  // a slow step, not a death
+    missing.push_back(id);
   }
-  if (missing == 0) return std::nullopt;
-  return r.start_s + kSuspectAfterS;
+  return missing;
+}
+
+std::optional<double> AgentProtocol::WaitedForFromS() const {
+  if (MissingInOpenStep().empty()) return std::nullopt;
+  return records_.rbegin()->second.start_s + kSuspectAfterS;
 }
 
 std::set<AgentId> AgentProtocol::MembersWaitedFor(double now_s) const {
-  std::set<AgentId> out;
-  const std::optional<double> from = WaitedForFromS();
-  if (!from || now_s < *from) return out;
-  const Record& r = records_.rbegin()->second;
-  for (AgentId id : *r.roll_call) {
-    if (id != id_ && r.held.count(id) == 0) out.insert(id);
-  }
-  return out;
+  const std::vector<AgentId> missing = MissingInOpenStep();
+  if (missing.empty() || now_s < records_.rbegin()->second.start_s + kSuspectAfterS) return {};
+  return {missing.begin(), missing.end()};
 }
 
 const std::vector<AgentId>* AgentProtocol::NewestRollCall(StepIndex* step) const {
@@ -351,10 +357,7 @@ void AgentProtocol::FollowRollCall(double now_s) {
     if (finished_) return;
   }
   const auto line = [this](LogLevel level, const std::vector<AgentId>& ids, const std::string& what) {
-    if (ids.empty()) return;
-    std::string text = ids.size() == 1 ? "agent " : "agents ";
-    for (std::size_t i = 0; i < ids.size(); ++i) text += (i > 0 ? " " : "") + std::to_string(ids[i]);
-    Log(level, text + what + "; members now " + std::to_string(MemberCount()));
+    if (!ids.empty()) Log(level, AgentsNamed(ids) + what + "; members now " + std::to_string(MemberCount()));
   };
   line(LogLevel::kWarn, lost, " lost (" + left_out + ")");
   line(LogLevel::kInfo, back, (back.size() == 1 ? " is" : " are") + std::string(" alive again (") + named + ")");
@@ -1181,9 +1184,7 @@ void AgentProtocol::Log(LogLevel level, std::string text) {
 
 void AgentProtocol::FlushJoined() {
   if (joined_.empty()) return;
-  std::string text = joined_.size() == 1 ? "agent " : "agents ";
-  for (std::size_t i = 0; i < joined_.size(); ++i) text += (i > 0 ? " " : "") + std::to_string(joined_[i]);
-  text += joined_.size() == 1 ? " is a member" : " are members";
+  std::string text = AgentsNamed(joined_) + (joined_.size() == 1 ? " is a member" : " are members");
   text += "; members now " + std::to_string(Members().size());
   joined_.clear();
   actions_.push_back(agent_action::Log{LogLevel::kInfo, std::move(text)});

@@ -217,6 +217,9 @@ class AgentProtocol {
   void ConfirmLapses(double now_s);
   // network.membership: roll_call: the members follow the newest roll call.
   void FollowRollCall(double now_s);
+  // Lock-step: the members of the open step's roll call whose contribution it lacks, if at
+  // most kMaxWaitedFor (else, in real time, or with no step open: none).
+  std::vector<AgentId> MissingInOpenStep() const;
   // A validated contribution held for its step.
   struct Held {
     ContributionMsg msg;

@@ -299,28 +299,26 @@ std::set<AgentId> TreeExchange::Expected(const StepState& s) const {
   return expected;
 }
 
-std::optional<double> TreeExchange::ChildrenWaitedForFromS(double after_s) const {
-  if (config_.scenario.mode != StepMode::kLockStep || unflushed_.empty() || place_.children.empty()) {
-    return std::nullopt;
-  }
+std::vector<AgentId> TreeExchange::ChildrenMissing() const {
+  std::vector<AgentId> missing;
+  if (config_.scenario.mode != StepMode::kLockStep || unflushed_.empty() || place_.children.empty()) return missing;
   const auto it = steps_.find(*unflushed_.begin());
-  if (it == steps_.end()) return std::nullopt;
-  const StepState& s = it->second;
-  for (AgentId child : Expected(s)) {
-    if (child != options_.self && s.reported.count(child) == 0) return s.first_s + after_s;
+  if (it == steps_.end()) return missing;
+  for (AgentId child : Expected(it->second)) {
+    if (child != options_.self && it->second.reported.count(child) == 0) missing.push_back(child);
   }
-  return std::nullopt;
+  return missing;
+}
+
+std::optional<double> TreeExchange::ChildrenWaitedForFromS(double after_s) const {
+  if (ChildrenMissing().empty()) return std::nullopt;
+  return steps_.at(*unflushed_.begin()).first_s + after_s;
 }
 
 std::set<AgentId> TreeExchange::ChildrenWaitedFor(double now_s, double after_s) const {
-  std::set<AgentId> out;
-  const std::optional<double> from = ChildrenWaitedForFromS(after_s);
-  if (!from || now_s < *from) return out;
-  const StepState& s = steps_.at(*unflushed_.begin());
-  for (AgentId child : Expected(s)) {
-    if (child != options_.self && s.reported.count(child) == 0) out.insert(child);
-  }
-  return out;
+  const std::vector<AgentId> missing = ChildrenMissing();
+  if (missing.empty() || now_s < steps_.at(*unflushed_.begin()).first_s + after_s) return {};
+  return {missing.begin(), missing.end()};
 }
 
 void TreeExchange::TryFlush(StepIndex step, double now_s) {

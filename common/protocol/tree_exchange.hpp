@@ -160,6 +160,8 @@ class TreeExchange {
   void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
   void Place();  // place_, child_subtrees_ and wait_s_ from sorted_
   void CheckSilence(double now_s);
+  // Lock-step: the children whose batch of the oldest step not yet sent on has not come.
+  std::vector<AgentId> ChildrenMissing() const;
   void LeaveSilent(AgentId parent, double now_s);  // if it is still the parent
   // The step's state, or nullptr for a step outside what is kept (too old or too far ahead).
   StepState* StateOf(StepIndex step, double now_s);
