@@ -210,12 +210,14 @@ int AgentNode::Run() {
     }
     ReportMatches(now_s);
     protocol_.OnUnknownIdsDropped(node_.DroppedByIdRange());
+    dds::LogReadersMadeAnew(node_, *context_.log);
     if (tree_) tree_->OnTimer(now_s);
     protocol_.OnTimer(now_s);
     Pump();
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
     if (ThrowForTest()) dds::ThrowInAThreadForTest();
     if (CrashForTest()) dds::CrashInAThreadForTest();
+    if (ReaderLoopForTest()) dds::LoopOverALostChangeForTest();
     if (dds::RestartForLostPorts(node_, *context_.log, "after step " + std::to_string(protocol_.last_written_step()),
                                  watching_ports_)) {
       WriteCounters();
@@ -261,6 +263,11 @@ bool AgentNode::CrashForTest() {
   if (crashed_for_test_ || at_step == 0 || protocol_.last_written_step() < at_step) return false;
   crashed_for_test_ = true;
   return true;
+}
+
+bool AgentNode::ReaderLoopForTest() const {
+  static const StepIndex at_step = dds::FaultReaderLoopStep(std::to_string(id_));
+  return at_step > 0 && protocol_.last_written_step() >= at_step;
 }
 
 bool AgentNode::DeafForTest() const {

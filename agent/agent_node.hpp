@@ -59,6 +59,7 @@ class AgentNode : public dds::Application {
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
   bool ThrowForTest();       // DEIF_FAULT_THROW (dds::FaultThrowStep), once
   bool CrashForTest();       // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
+  bool ReaderLoopForTest() const;  // DEIF_FAULT_READER_LOOP (dds::FaultReaderLoopStep)
   // Whether this agent's endpoint discovery stopped short of the participants it sees
   // (protocol::DiscoveryWatch) and it is to start again in place with a new participant. If
   // it already did so dds::kMaxRestartsInPlace times, it says so once and goes on.

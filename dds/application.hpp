@@ -137,6 +137,12 @@ void ThrowInAThreadForTest();
 StepIndex FaultCrashStep(const std::string& who);
 // With `wait`, the calling thread waits for the crash: nothing it would do next happens.
 void CrashInAThreadForTest(bool wait = false);
+// DEIF_FAULT_READER_LOOP=STEP:WHO[,...], the same way: the step from which the first process
+// of `who` is caught, in its main loop, as in Fast DDS's loop over a change a keyed reader's
+// history lost track of (LoopOverALostChangeForTest), so that tests can see it start again
+// in place (docs/FASTDDS_NOTES.md, "A reader that hands out one sample for ever"); 0 when
+// not asked.
+StepIndex FaultReaderLoopStep(const std::string& who);
 // How Fast DDS's (boost's) exception of a timed-out interprocess lock begins.
 constexpr const char* kLockTimeout = "Interprocess mutex timeout when locking";
 // For a process that must start again with a new participant (`why`): logs why, and whether
@@ -155,6 +161,10 @@ class Node;  // dds/node.hpp
 // place for it (logged, as MayRestartInPlace). When it may not, `watching` becomes false and
 // the process goes on as it is. `when` as for MayRestartInPlace.
 bool RestartForLostPorts(Node& node, spdlog::logger& log, const std::string& when, bool& watching);
+
+// Logs each reader that `node` made anew since the last call (Node::ReadersMadeAnew), once
+// per call of it.
+void LogReadersMadeAnew(Node& node, spdlog::logger& log);
 
 // A protocol's log line, at its level, through the process logger.
 void LogAt(spdlog::logger& log, protocol::LogLevel level, const std::string& text);

@@ -51,6 +51,18 @@ struct ReaderSpec {
   std::optional<std::pair<AgentId, AgentId>> id_range = std::nullopt;
 };
 
+// What a process does when one of its readers is caught in Fast DDS 2.9.1's loop over a
+// change that a keyed history lost track of, from which no call returns: called once, on
+// Fast DDS's logging thread, when its error "Change not found on this key" came 1000 times
+// within a second although Node::Wait makes anew a reader that hands out a sample twice
+// (docs/FASTDDS_NOTES.md, "A reader that hands out one sample for ever"). Only the first
+// few of those errors are shown. nullptr: nothing is called.
+using ReaderLoopHandler = void (*)();
+void SetReaderLoopHandler(ReaderLoopHandler handler);
+// For tests (DEIF_FAULT_READER_LOOP): the calling thread does what Fast DDS's loop does, for
+// ever: it queues that error, about 10000 times a second, and never returns.
+[[noreturn]] void LoopOverALostChangeForTest();
+
 class Node {
  public:
   // Creates the participant in config.network.domain_id, in the partition of run_name (no
@@ -169,6 +181,14 @@ class Node {
   std::vector<int> PortsLost();
   // Samples this node's id_range readers dropped (keyed to an id outside the range).
   long DroppedByIdRange() const;
+  // The readers that Wait() made anew since the last call, because one handed out the same
+  // sample twice in a call: Fast DDS 2.9.1 lost track of it in the reader's history and
+  // would hand it out for ever (docs/FASTDDS_NOTES.md, "A reader that hands out one sample
+  // for ever"). The new reader gets the writers' histories again, as a late joiner does.
+  std::vector<Topic> ReadersMadeAnew();
+  // For tests: the next Wait() makes the reader of `topic` anew, as when it handed out a
+  // sample twice.
+  void MakeReaderAnewForTest(Topic topic);
   // Makes this participant's writers send every sample, as another vendor's or a hostile
   // writer does, instead of evaluating its peers' content filters first (a test tool's
   // attack must reach its targets). Before any writer or filtered reader.

@@ -127,6 +127,7 @@ class Observer : public dds::Application {
       std::lock_guard<std::mutex> lock(mutex_);
       const double now = Now();
       for (const dds::Event& event : events) Dispatch(event, now);
+      dds::LogReadersMadeAnew(node_, *context_.log);
       for (const protocol::SenderKey& ended : node_.EndedAgents(0.1, [this] { return model_.LiveOutOfRollCall(); }, 0.02)) {
         model_.OnProcessEnded(ended, now);
       }

@@ -180,6 +180,7 @@ int TargetNode::Run() {
     const double now_s = dds::ToSeconds(dds::Clock::now());
     if (protocol_.started()) delivery_.Record(events);  // from the first step on (as the agents)
     for (const dds::Event& event : events) Dispatch(event, now_s);
+    dds::LogReadersMadeAnew(node_, *context_.log);
     std::deque<StepIndex> go;
     {
       std::lock_guard<std::mutex> lock(control_mutex_);

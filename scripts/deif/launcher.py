@@ -828,6 +828,8 @@ class Launcher:
                           "expected": expected, "restarts": p.restarts,
                           "restarts_in_place": restarts_in_place(p.log_path),
                           "crashes": crashes(p.log_path),
+                          "reader_loops": log_count(p.log_path, READER_LOOP),
+                          "readers_made_anew": log_count(p.log_path, READER_MADE_ANEW),
                           "started_unix_s": p.started_unix_s,
                           "log": os.path.relpath(p.log_path, self.out_dir)})
         metrics = self.evaluate()
@@ -886,6 +888,23 @@ def restarts_in_place(log_path):
     try:
         with open(log_path, "rb") as f:
             return f.read().count(b"starts again in place")
+    except OSError:
+        return 0
+
+
+# What a process logs when Fast DDS 2.9.1's reader loops over a change its history lost track
+# of: caught inside a call (it starts again in place, counted in restarts_in_place too), or
+# by the application, which made the reader anew (docs/FASTDDS_NOTES.md, "A reader that hands
+# out one sample for ever").
+READER_LOOP = b"a reader is caught in Fast DDS's loop"
+READER_MADE_ANEW = b"handed out the same sample twice"
+
+
+def log_count(log_path, text):
+    """How often `text` (bytes) is in the log; 0 without a log."""
+    try:
+        with open(log_path, "rb") as f:
+            return f.read().count(text)
     except OSError:
         return 0
 

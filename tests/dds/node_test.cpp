@@ -248,6 +248,88 @@ TEST_CASE("a loop of shared-memory receive errors marks the process deaf; a few 
   CHECK(deif::dds::Node::ReceiveStuck());
 }
 
+namespace {
+
+// What Fast DDS 2.9.1 logs each time a keyed reader's history misses a change it removes
+// (DataReaderHistory::remove_change_sub): an error of category SUBSCRIBER.
+void LogLostChange() {
+  using eprosima::fastdds::dds::Log;
+  Log::QueueLog("Change not found on this key, something is wrong",
+                Log::Context{__FILE__, __LINE__, __func__, "SUBSCRIBER"}, Log::Kind::Error);
+}
+
+int g_reader_loops = 0;
+void CountReaderLoop() { ++g_reader_loops; }
+
+}  // namespace
+
+TEST_CASE("a loop of lost-change errors calls the reader-loop handler once; a few do not",
+          "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  deif::dds::Node node(config, "node-test-reader-loop", "node_reader_loop");  // installs the log consumer
+  using eprosima::fastdds::dds::Log;
+  g_reader_loops = 0;
+  deif::dds::SetReaderLoopHandler(CountReaderLoop);
+
+  for (int i = 0; i < 50; ++i) LogLostChange();  // a one-off, as a writer restarting can cause
+  Log::Flush();
+  CHECK(g_reader_loops == 0);
+
+  for (int i = 0; i < 2000; ++i) LogLostChange();  // the loop logs thousands a second
+  Log::Flush();
+  CHECK(g_reader_loops == 1);
+  for (int i = 0; i < 2000; ++i) LogLostChange();
+  Log::Flush();
+  CHECK(g_reader_loops == 1);  // once
+  deif::dds::SetReaderLoopHandler(nullptr);
+}
+
+TEST_CASE("a reader made anew is reported once and gets its writer's history and new samples",
+          "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  deif::dds::Node writer(config, "node-test-anew-writer", "node_anew");
+  deif::dds::Node reader(config, "node-test-anew-reader", "node_anew");
+  writer.AddWriter(Topic::kAgentState);  // transient local: a new reader gets what it holds
+  reader.AddReader({Topic::kAgentState, {}});
+  writer.StartLiveliness();
+  std::vector<deif::StepIndex> got;
+  const auto take = [&](deif::dds::Node& waiter) {
+    for (const auto& event : waiter.Wait(Clock::now() + std::chrono::milliseconds(20))) {
+      if (const auto* r = std::get_if<deif::dds::Received<deif::protocol::StateMsg>>(&event)) {
+        got.push_back(r->msg.step);
+      }
+    }
+  };
+  REQUIRE(Within(10.0, reader, [&] { return writer.MatchedReaders(Topic::kAgentState) == 1; }));
+  deif::protocol::StateMsg state;
+  state.run = deif::protocol::RunTokenOf("node_anew");
+  state.agent_id = 2;
+  state.step = 7;
+  writer.Write(state);
+  REQUIRE(Within(10.0, writer, [&] {
+    take(reader);
+    return !got.empty();
+  }));
+  CHECK(reader.ReadersMadeAnew().empty());
+
+  reader.MakeReaderAnewForTest(Topic::kAgentState);
+  take(reader);
+  CHECK(reader.ReadersMadeAnew() == std::vector<Topic>{Topic::kAgentState});
+  CHECK(reader.ReadersMadeAnew().empty());  // reported once
+  // The new reader matches, gets the writer's history again (as a late joiner) and what
+  // is written since.
+  state.step = 8;
+  REQUIRE(Within(10.0, reader, [&] { return writer.MatchedReaders(Topic::kAgentState) == 1; }));
+  writer.Write(state);
+  CHECK(Within(10.0, writer, [&] {
+    take(reader);
+    return got.size() >= 3;
+  }));
+  CHECK(got == std::vector<deif::StepIndex>{7, 7, 8});
+}
+
 TEST_CASE("a node sees its run's target up before the target has any endpoint, and not another "
           "run's; nor once the target is gone", "[dds][node]") {
   const deif::Config config = deif::ParseConfig(

@@ -4,8 +4,10 @@ two tests never see each other; docs/TESTING.md), the project's scripts on sys.p
 the in-process simulation a run is compared with. A group's conftest.py imports the
 fixtures; its tests import `oracle`. `no_crash_unless_asked` (autouse where imported) fails
 a test in which a process of a run crashed and started again in place (docs/RUNNING.md, "A
-crash") while the test had not asked for it with DEIF_FAULT_CRASH: a restart in place keeps
-a run going, and must not hide a crash from a test."""
+crash") while the test had not asked for it with DEIF_FAULT_CRASH, or was caught in Fast
+DDS's reader loop (docs/FASTDDS_NOTES.md, "A reader that hands out one sample for ever")
+while it had not asked for it with DEIF_FAULT_READER_LOOP: a restart in place keeps a run
+going, and must not hide a crash from a test."""
 import json
 import os
 import shutil
@@ -45,11 +47,14 @@ def no_crash_unless_asked(monkeypatch):
         if "DEIF_FAULT_CRASH" not in os.environ:
             crashed.extend(f"{p['name']} ({p['crashes']} crash(es), log {p['log']})"
                            for p in res.summary.get("processes", []) if p.get("crashes"))
+        if "DEIF_FAULT_READER_LOOP" not in os.environ:
+            crashed.extend(f"{p['name']} ({p['reader_loops']} reader loop(s) of Fast DDS, log {p['log']})"
+                           for p in res.summary.get("processes", []) if p.get("reader_loops"))
         return res
 
     monkeypatch.setattr(launcher.Launcher, "finish", checked_finish)
     yield
-    assert not crashed, f"a process crashed and started again in place: {crashed}"
+    assert not crashed, f"a process crashed (or was caught in a reader's loop) and started again in place: {crashed}"
 
 
 def oracle(run_dir, work=None):
