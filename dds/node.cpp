@@ -1360,12 +1360,13 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out, Convert conver
   if (it == d.readers.end()) return;
   // Kept from call to call: a batch's sequence keeps its storage (docs/BENCHMARKS.md).
   thread_local Idl sample;
-  // The samples taken in this call, by writer and sequence number (a few per peer).
+  // The samples with data taken in this call, by writer and sequence number (a few per peer).
   thread_local std::set<std::pair<protocol::SenderKey, std::int64_t>> taken;
   taken.clear();
   fdds::SampleInfo info;
-  while (taken.size() < kMaxTakesPerWait &&
-         it->second->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK) {
+  for (std::size_t n = 0;
+       n < kMaxTakesPerWait && it->second->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK; ++n) {
+    if (!info.valid_data) continue;  // news of an instance's state: no writer's sample
     // Fast DDS 2.9.1 can lose track of a change in a keyed reader's history ("Change not
     // found on this key, something is wrong", remove_change_sub): take then hands out that
     // same change again and again, for good (docs/FASTDDS_NOTES.md, "A reader that hands out
@@ -1376,7 +1377,6 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out, Convert conver
       d.readers_to_remake.insert(topic);
       return;
     }
-    if (!info.valid_data) continue;
     const protocol::SenderKey from = ToKey(info.publication_handle);
     if (d.own_writers.count(from) > 0) continue;  // our own samples
     const double written_unix_s = static_cast<double>(info.source_timestamp.seconds()) +
