@@ -1152,6 +1152,33 @@ void ReplaceReader(Node::Impl& d, Topic topic, const std::function<void(fdds::Su
   MakeReader(d, topic, subscriber, description, qos, d.listeners.at(topic).get());
 }
 
+// Deletes the node's writer of `topic` (one without liveliness assertions: no thread of
+// StartLiveliness holds it) and makes a new one with the same QoS in the same publisher, with
+// a listener of its own; `between` runs on the publisher in between.
+void ReplaceWriter(Node::Impl& d, Topic topic, const std::function<void(fdds::Publisher*)>& between) {
+  fdds::DataWriter* old = d.writers.at(topic);
+  auto* publisher = const_cast<fdds::Publisher*>(old->get_publisher());
+  const fdds::DataWriterQos qos = old->get_qos();
+  {
+    std::lock_guard<std::mutex> lock(d.assert_mutex);
+    d.last_write.erase(old);
+  }
+  if (publisher->delete_datawriter(old) != ReturnCode_t::RETCODE_OK) {
+    throw std::runtime_error(std::string("cannot delete the writer on ") + NamesOf(topic).name);
+  }
+  if (between) between(publisher);
+  auto listener = std::make_unique<MatchListener>([&d] { d.guard.set_trigger_value(true); });
+  fdds::DataWriter* writer = publisher->create_datawriter(d.topics.at(topic), qos, listener.get(),
+                                                          fdds::StatusMask::publication_matched());
+  if (writer == nullptr) throw std::runtime_error(std::string("cannot create a writer on ") + NamesOf(topic).name);
+  d.writer_listeners[topic] = std::move(listener);  // the old writer that called the old one is gone
+  d.writers[topic] = writer;
+  for (auto& entry : d.every_writer) {
+    if (entry.second == old) entry.second = writer;
+  }
+  d.own_writers.insert(ToKey(writer->get_instance_handle()));
+}
+
 }  // namespace
 
 void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix) {
@@ -1176,7 +1203,17 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
     }
   };
   if (auto w = d.writers.find(topic); w != d.writers.end()) {
-    moved(writer_suffix, const_cast<fdds::Publisher*>(w->second->get_publisher()), "publisher");
+    auto* publisher = const_cast<fdds::Publisher*>(w->second->get_publisher());
+    if (QosOf(topic, d.config.network).manual_liveliness) {
+      moved(writer_suffix, publisher, "publisher");  // its liveliness thread holds it (no such move yet)
+    } else if (!already_in(writer_suffix, publisher)) {
+      // A new writer, not the old one moved, for the same reason as the reader below: a
+      // writer moved away from its reader during a partition and back after the heal sent
+      // that reader nothing for 24 s (12 steps at the step timeout; docs/FASTDDS_NOTES.md,
+      // "A reader moved and moved back"). The new parent gets what it missed from the tree
+      // exchange, which sends it again (docs/SCALING.md), not from the writer's history.
+      ReplaceWriter(d, topic, [&](fdds::Publisher* p) { moved(writer_suffix, p, "publisher"); });
+    }
   }
   auto r = d.readers.find(topic);
   if (r == d.readers.end()) return;

@@ -85,9 +85,10 @@ class Node {
   void SetSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
   // Moves the writer and reader of `topic`, made after SetSubPartitions, to other
   // sub-partitions (a relay of the tree exchange with a new parent): they unmatch the old
-  // peers and match the new ones, which get this writer's history (transient local). The
-  // reader is made anew there (docs/FASTDDS_NOTES.md, "A reader moved and moved back");
-  // the samples the old one held come out of the next Wait().
+  // peers and match the new ones. Both are made anew there (docs/FASTDDS_NOTES.md, "A
+  // reader moved and moved back"): the new writer has no history (WriterKey changes), and
+  // the samples the old reader held come out of the next Wait(). A writer with liveliness
+  // assertions is moved, not made anew.
   // From the thread that calls Wait(), never during it.
   void MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
   // Deletes this node's reader of `topic` (and its content filter), if it has one: the

@@ -209,6 +209,47 @@ TEST_CASE("a reader moved to another sub-partition matches its new writer and ke
   CHECK(got == std::vector<std::pair<deif::AgentId, deif::StepIndex>>{{1, 7}, {2, 8}});
 }
 
+TEST_CASE("a writer moved to another sub-partition is a new writer, matched there only", "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  // A child of the tree exchange moving its writer up from parent a to parent b
+  // (docs/SCALING.md; docs/FASTDDS_NOTES.md, "A reader moved and moved back").
+  deif::dds::Node parent_a(config, "node-test-wmove-a", "node_wmove");
+  deif::dds::Node parent_b(config, "node-test-wmove-b", "node_wmove");
+  deif::dds::Node child(config, "node-test-wmove-child", "node_wmove");
+  parent_a.SetSubPartitions(Topic::kRelayUp, "unused", "up.a");
+  parent_a.AddReader({Topic::kRelayUp, {}});
+  parent_b.SetSubPartitions(Topic::kRelayUp, "unused", "up.b");
+  parent_b.AddReader({Topic::kRelayUp, {}});
+  child.SetSubPartitions(Topic::kRelayUp, "up.a", "unused");
+  child.AddWriter(Topic::kRelayUp);
+  REQUIRE(Within(10.0, child, [&] { return child.MatchedReaders(Topic::kRelayUp) == 1; }));
+  const deif::protocol::SenderKey before = child.WriterKey(Topic::kRelayUp);
+
+  child.MoveSubPartitions(Topic::kRelayUp, "up.b", "unused");
+  CHECK(child.WriterKey(Topic::kRelayUp) != before);
+  CHECK(Within(10.0, child, [&] { return parent_b.MatchedWriters(Topic::kRelayUp) == 1; }));
+  CHECK(Within(10.0, child, [&] { return parent_a.MatchedWriters(Topic::kRelayUp) == 0; }));
+  CHECK(child.MatchedReaders(Topic::kRelayUp) == 1);  // b's, counted by the new writer's listener
+  deif::protocol::BatchMsg batch;
+  batch.run = deif::protocol::RunTokenOf("node_wmove");
+  batch.sender_id = 3;
+  batch.step = 9;
+  child.Write(batch);
+  std::vector<std::pair<deif::dds::Node*, deif::StepIndex>> got;
+  CHECK(Within(10.0, child, [&] {
+    for (deif::dds::Node* parent : {&parent_a, &parent_b}) {
+      for (const auto& event : parent->Wait(Clock::now() + std::chrono::milliseconds(10))) {
+        if (const auto* r = std::get_if<deif::dds::Received<deif::protocol::BatchMsg>>(&event)) {
+          got.emplace_back(parent, r->msg.step);
+        }
+      }
+    }
+    return !got.empty();
+  }));
+  CHECK(got == std::vector<std::pair<deif::dds::Node*, deif::StepIndex>>{{&parent_b, 9}});
+}
+
 TEST_CASE("sub-partitions are refused with security or ROS 2 naming", "[dds][node]") {
   const deif::Config config = deif::ParseConfig(
       "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp, ros2_naming: true}\n", "node_test");
