@@ -195,7 +195,7 @@ def test_tree_roll_call_partition_and_heal(work, domain):
 def test_tree_lockstep_partition_32_agents(work, domain):
     """Lock-step over the default tree (32 agents, fan-out 6), host 3 cut off for 3 s. The
     agents on host 2 whose parent is on host 3 move under another parent and back; once the
-    cut-off agents are back every agent fuses every member again within a few steps. Before
+    cut-off agents are back every agent fuses every member again, and keeps doing so. Before
     a moved reader was made anew, such a child got nothing from its old parent for 25-31
     steps in 2 of 4 runs, and with it every step of the network waited the step timeout
     (docs/FASTDDS_NOTES.md, "A reader moved and moved back"). The heal is also where Fast
@@ -214,21 +214,29 @@ def test_tree_lockstep_partition_32_agents(work, domain):
     assert "exchange: tree, fan-out 6, parent agent 4" in log
     assert "parent now agent 4" in log  # it moved away during the cut and came back
     # The cut-off agents are heard again a moment after the heal: 0.2 s in most runs, 2-3 s on
-    # a loaded host (two tests and a build beside it), which at 25-60 steps a second is more
-    # than the history; such an agent skips the steps it missed and rejoins at the network's
-    # step (docs/PROTOCOL.md, "Rejoining"). From its first step back every agent writes every
-    # step, and from 10 steps after the last one is back every agent fuses every member.
-    back = {}
+    # a loaded host (two tests and a build beside it), which at 25-60 steps a second can be
+    # more than the history; such an agent skips the steps it missed and rejoins at the
+    # network's step (docs/PROTOCOL.md, "Rejoining"). One that missed fewer writes them once
+    # it is back, with what it has of them (incomplete rows). From its first step back every
+    # agent writes every step; and once an agent has fused every member again it keeps doing
+    # so (at most 2 steps without, as the roll call takes the cut-off agents back), from at
+    # least 100 steps before the end (the first was 118 steps after the heal once, at 50
+    # steps a second: when an agent is back is a matter of time, not of steps). A stall
+    # after the heal breaks that: 12 steps at the step timeout, each fused without a
+    # subtree, with the writer up moved and moved back (docs/FASTDDS_NOTES.md); none in 5
+    # runs with it made anew, beside a busy loop.
     for j in agents:
-        written = [int(r["step"]) for r in rows(res.out_dir, j) if int(r["step"]) > healed]
-        assert written, f"agent {j} wrote nothing after the heal"
-        back[j] = written[0]
-        assert written == list(range(back[j], steps + 1)), f"agent {j} skipped steps after it was back"
-    settled = max(back.values()) + 10
-    assert settled + 100 <= steps, f"the last agent was back at step {settled - 10}: too late to see what follows"
-    for j in agents:
-        late = [int(r["step"]) for r in rows(res.out_dir, j) if int(r["step"]) >= settled and r["complete"] != "1"]
-        assert late == [], f"agent {j} fused without every member at steps {late[:5]}... after all were back"
+        after = [r for r in rows(res.out_dir, j) if int(r["step"]) > healed]
+        assert after, f"agent {j} wrote nothing after the heal"
+        written = [int(r["step"]) for r in after]
+        assert written == list(range(written[0], steps + 1)), f"agent {j} skipped steps after it was back"
+        first = next((i for i, r in enumerate(after) if r["complete"] == "1"), None)
+        assert first is not None and int(after[first]["step"]) <= steps - 100, \
+            f"agent {j} fused every member again only at step " \
+            f"{after[first]['step'] if first is not None else 'never'} (healed at {healed})"
+        relapses = [int(r["step"]) for r in after[first:] if r["complete"] != "1"]
+        assert len(relapses) <= 2, f"agent {j} fused without every member at steps {relapses[:5]}... " \
+                                   f"after it had them all again at step {after[first]['step']}"
     assert res.summary["metrics"]["final_agents"] == n
 
 
