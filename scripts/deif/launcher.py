@@ -268,12 +268,14 @@ class Launcher:
     def __init__(self, config_path, out_dir, *, agents=None, steps=None, seed=None, domain=None,
                  overrides=(), faults=(), hosts=1, loss=0.0, partitions=(), run_name=None,
                  progress=True, log=sys.stderr, timeout_s=None, discovery_server=False,
-                 secure=False, certs_dir=None, staggered=None, agent_sched="batch"):
+                 secure=False, certs_dir=None, staggered=None, agent_sched="batch", nice=0):
         """staggered: start the processes one after another (True) or all at once (False);
         None: one after another when the run is secure (start()). agent_sched: the agents' CPU
         scheduling policy, "batch" (SCHED_BATCH: a woken agent does not preempt the process
         that runs, so the target, the world's clock, is not starved by N agents;
-        docs/RUNNING.md, "CPU scheduling") or "normal"."""
+        docs/RUNNING.md, "CPU scheduling") or "normal". nice: the nice value of the target,
+        the agents and the Discovery Server (-20..19; below 0 needs root): a run in real time on
+        a host that does other work holds its period better when it comes first."""
         self.log = log
         self.progress = progress and hasattr(log, "isatty") and log.isatty()
         if hosts < 1:
@@ -290,6 +292,11 @@ class Launcher:
         if agent_sched not in AGENT_SCHED:
             raise LaunchError(f"--agent-sched {agent_sched}: must be one of {', '.join(AGENT_SCHED)}")
         self.agent_sched = agent_sched
+        if not isinstance(nice, int) or not -20 <= nice <= 19:
+            raise LaunchError(f"--nice {nice}: must be an integer in -20..19")
+        if nice < 0 and os.geteuid() != 0:
+            raise LaunchError(f"--nice {nice}: a negative nice value needs root (CAP_SYS_NICE)")
+        self.nice = nice
         if hosts > 1:
             try:
                 hosts_mod.require_root()
@@ -463,6 +470,8 @@ class Launcher:
         argv = list(proc.argv)
         if proc.name.startswith("agent_"):
             argv = sched_prefix(self._start_sched()) + argv
+        if self.nice != 0 and proc.name != "observer":
+            argv = ["nice", "-n", str(self.nice)] + argv  # before any thread: every one has it
         argv = ["setpriv", "--pdeathsig", "KILL", "--", *argv]
         if self.hosts is not None:
             argv = self.hosts.command(proc.host, argv)
@@ -860,6 +869,7 @@ class Launcher:
             "partitions": [p.__dict__ for p in self.partitions],
             "faults": [f.__dict__ for f in self.faults],
             "agent_sched": self.agent_sched,
+            "nice": self.nice,
             "processes": procs,
             "wall_time_s": time.time() - self.started,
             "live_url": self.live_url,

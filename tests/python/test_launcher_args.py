@@ -167,6 +167,31 @@ def test_agents_start_under_their_scheduling_policy(deif_sim, work_dir):
     assert not os.path.exists(os.path.join(work_dir, "c"))
 
 
+def test_the_run_comes_first_with_a_nice_value(deif_sim, work_dir, monkeypatch):
+    """--nice N: the target and the agents start under nice (before their policy, so every
+    thread has both); the live observer keeps its own. Out of -20..19, or below 0 without
+    root, it is refused before anything starts."""
+    lau = launcher.Launcher(DEFAULT, os.path.join(work_dir, "a"), agents=2, nice=-10)
+    agent = launcher.Proc("agent_1", ["deif_agent", "--id", "1"], 1)
+    target = launcher.Proc("target", ["deif_target"], 1)
+    observer = launcher.Proc("observer", ["deif_observer"], 1)
+    assert lau.command(agent) == ["setpriv", "--pdeathsig", "KILL", "--", "nice", "-n", "-10", "chrt", "--batch",
+                                  "0", "deif_agent", "--id", "1"]
+    assert lau.command(target) == ["setpriv", "--pdeathsig", "KILL", "--", "nice", "-n", "-10", "deif_target"]
+    assert lau.command(observer) == ["setpriv", "--pdeathsig", "KILL", "--", "deif_observer"]
+    for value, message in ((20, "--nice 20: must be an integer in -20..19"),
+                           (-21, "--nice -21: must be an integer in -20..19")):
+        with pytest.raises(launcher.LaunchError) as e:
+            launcher.Launcher(DEFAULT, os.path.join(work_dir, "c"), agents=2, nice=value)
+        assert str(e.value) == message
+    monkeypatch.setattr(os, "geteuid", lambda: 1000)
+    with pytest.raises(launcher.LaunchError) as e:
+        launcher.Launcher(DEFAULT, os.path.join(work_dir, "c"), agents=2, nice=-5)
+    assert str(e.value) == "--nice -5: a negative nice value needs root (CAP_SYS_NICE)"
+    assert launcher.Launcher(DEFAULT, os.path.join(work_dir, "d"), agents=2, nice=5).nice == 5
+    assert not os.path.exists(os.path.join(work_dir, "c"))
+
+
 def _touch(d, name):
     with open(os.path.join(d, name), "wb") as f:
         f.write(b"\0" * 4096)
