@@ -54,13 +54,13 @@ struct ReaderSpec {
 // What a process does when one of its readers is caught in Fast DDS 2.9.1's loop over a
 // change that a keyed history lost track of, from which no call returns: called once, on
 // Fast DDS's logging thread, when its error "Change not found on this key" came 1000 times
-// within a second although Node::Wait makes anew a reader that hands out a sample twice
+// within 5 s although Node::Wait makes anew a reader that hands out a sample twice
 // (docs/FASTDDS_NOTES.md, "A reader that hands out one sample for ever"). Only the first
 // few of those errors are shown. nullptr: nothing is called.
 using ReaderLoopHandler = void (*)();
 void SetReaderLoopHandler(ReaderLoopHandler handler);
 // For tests (DEIF_FAULT_READER_LOOP): the calling thread does what Fast DDS's loop does, for
-// ever: it queues that error, about 10000 times a second, and never returns.
+// ever: it queues that error, in bursts of 100 a millisecond, and never returns.
 [[noreturn]] void LoopOverALostChangeForTest();
 
 class Node {

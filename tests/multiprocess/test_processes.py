@@ -425,6 +425,20 @@ def assert_rejoined(res, agent, at_step):
             f"agent {j}: {fused_all} of {len(late)} steps fused 4; its log:\n{log_excerpt(res.out_dir, j)}"
 
 
+def agent_3_restarted_by(fault, work, domain, monkeypatch):
+    """A 4-agent real-time run of 150 steps with `fault`=50:3 (DEIF_FAULT_*): agent 3 must
+    start again in place once, never by the launcher, and end well. Returns the run and
+    agent 3's summary and log."""
+    monkeypatch.setenv(fault, "50:3")
+    res = launch(work, domain, agents=4, steps=150,
+                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
+    assert res.ok, res.why_not_ok()
+    p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
+    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1, p
+    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
+        return res, p, f.read()
+
+
 def test_thread_ended_by_a_lock_timeout(work, domain, monkeypatch):
     """A shared-memory receive thread of Fast DDS 2.9.1 locks its port once more after each
     message, outside any try: when another process holds that lock past Fast DDS's timeout
@@ -432,14 +446,7 @@ def test_thread_ended_by_a_lock_timeout(work, domain, monkeypatch):
     abort the process (docs/FASTDDS_NOTES.md, "An exception that ends a thread"). The same
     exception, thrown in a thread of agent 3 at step 50 (DEIF_FAULT_THROW), must not end it:
     it says why, starts again in place, rejoins and is fused by everyone again."""
-    monkeypatch.setenv("DEIF_FAULT_THROW", "50:3")
-    res = launch(work, domain, agents=4, steps=150,
-                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
-    assert res.ok, res.why_not_ok()
-    p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
-    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1, p
-    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
-        log = f.read()
+    res, _, log = agent_3_restarted_by("DEIF_FAULT_THROW", work, domain, monkeypatch)
     assert "an exception ended a thread (Interprocess mutex timeout when locking" in log, log[-2000:]
     assert_rejoined(res, 3, at_step=50)
 
@@ -450,14 +457,8 @@ def test_crash_in_a_thread(work, domain, monkeypatch):
     lose the sensor: agent 3, crashing with SIGSEGV in a thread of its own at step 50
     (DEIF_FAULT_CRASH), says so, starts again in place, rejoins and is fused by everyone
     again; its CSV never holds a step twice (docs/RUNNING.md, "A crash")."""
-    monkeypatch.setenv("DEIF_FAULT_CRASH", "50:3")
-    res = launch(work, domain, agents=4, steps=150,
-                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
-    assert res.ok, res.why_not_ok()
-    p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
-    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1 and p["crashes"] == 1, p
-    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
-        log = f.read()
+    res, p, log = agent_3_restarted_by("DEIF_FAULT_CRASH", work, domain, monkeypatch)
+    assert p["crashes"] == 1, p
     assert "deif_agent: error: crashed (signal 11) while the run goes on; it starts again in place" in log, \
         log[-2000:]
     assert log.count(" up: run ") == 2, log[-2000:]  # one new process image, not a crash loop
@@ -476,14 +477,8 @@ def test_reader_loop(work, domain, monkeypatch):
     thread, caught so at step 50 (DEIF_FAULT_READER_LOOP), must not hold up the run: it says
     so, starts again in place, rejoins and is fused by everyone again. Its log keeps only the
     first few of those errors."""
-    monkeypatch.setenv("DEIF_FAULT_READER_LOOP", "50:3")
-    res = launch(work, domain, agents=4, steps=150,
-                 overrides=["scenario.mode=realtime", "scenario.period_s=0.1"])
-    assert res.ok, res.why_not_ok()
-    p = {p["name"]: p for p in res.summary["processes"]}["agent_3"]
-    assert p["exit_status"] == 0 and p["restarts"] == 0 and p["restarts_in_place"] == 1, p
-    with open(os.path.join(res.out_dir, "logs", "agent-3.log"), errors="replace") as f:
-        log = f.read()
+    res, p, log = agent_3_restarted_by("DEIF_FAULT_READER_LOOP", work, domain, monkeypatch)
+    assert p["reader_loops"] == 1, p
     assert "deif_agent: error: a reader is caught in Fast DDS's loop over a change its history lost track of" \
         in log, log[-2000:]
     assert log.count(" up: run ") == 2, log[-2000:]
