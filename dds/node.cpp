@@ -271,6 +271,25 @@ std::atomic<bool> g_receive_stuck{false};
 // SetReaderLoopHandler's; taken (and called) once.
 std::atomic<ReaderLoopHandler> g_reader_loop_handler{nullptr};
 
+// Counts events in windows of `window`: whether `count` of them came within one.
+class Burst {
+ public:
+  Burst(Clock::duration window, int count) : window_(window), count_(count) {}
+  bool Note(Clock::time_point now) {
+    if (now - start_ > window_) {
+      start_ = now;
+      seen_ = 0;
+    }
+    return ++seen_ >= count_;
+  }
+
+ private:
+  Clock::duration window_;
+  int count_;
+  Clock::time_point start_{};
+  int seen_ = 0;
+};
+
 // Fast DDS's log, read by the process itself. It shows Fast DDS's errors, and with
 // DEIF_DDS_LOG=warning (or info) its warnings (and more): errors and warnings on stderr, so in
 // every process's log (Fast DDS's own consumer wrote them on stdout, which for the target is
@@ -290,7 +309,7 @@ class DdsLog final : public fdds::LogConsumer {
     if (entry.kind == fdds::Log::Warning && entry.context.category != nullptr &&
         std::strcmp(entry.context.category, "RTPS_MSG_OUT") == 0 &&
         entry.message.rfind("Error receiving data", 0) == 0) {
-      NoteReceiveError();
+      if (receive_errors_.Note(Clock::now())) g_receive_stuck.store(true);  // on its one logging thread
     }
     if (entry.kind == fdds::Log::Error && entry.context.category != nullptr &&
         std::strcmp(entry.context.category, "SUBSCRIBER") == 0 &&
@@ -303,36 +322,17 @@ class DdsLog final : public fdds::LogConsumer {
   }
 
  private:
-  static constexpr int kStuckErrors = 1000;  // within kWindow: a loop, not a socket closed
-  static constexpr auto kWindow = std::chrono::seconds(1);
-
-  void NoteReceiveError() {  // on Fast DDS's one logging thread
-    const auto now = Clock::now();
-    if (now - window_start_ > kWindow) {
-      window_start_ = now;
-      errors_ = 0;
-    }
-    if (++errors_ >= kStuckErrors) g_receive_stuck.store(true);
-  }
-
   // Fast DDS 2.9.1's error when a keyed reader's history lost track of a change: in a loop
   // of its own, thousands a second (docs/FASTDDS_NOTES.md, "A reader that hands out one
   // sample for ever"). Node::Wait makes a reader that hands out one sample twice anew; if
   // the errors go on all the same, the loop is one that no call returns from.
   static constexpr const char* kLostChange = "Change not found on this key";
   static constexpr int kLostChangesShown = 5;
-  static constexpr int kLoopErrors = 1000;  // within kLoopWindow: a loop, not a writer restarting
-  static constexpr auto kLoopWindow = std::chrono::seconds(5);
 
-  // Whether to show this one. Calls the handler (SetReaderLoopHandler) once kLoopErrors of
-  // them came within kLoopWindow.
+  // Whether to show this one. Calls the handler (SetReaderLoopHandler) once lost_changes_
+  // says the loop.
   bool NoteLostChange() {  // on Fast DDS's one logging thread
-    const auto now = Clock::now();
-    if (now - lost_window_start_ > kLoopWindow) {
-      lost_window_start_ = now;
-      lost_in_window_ = 0;
-    }
-    if (++lost_in_window_ >= kLoopErrors) {
+    if (lost_changes_.Note(Clock::now())) {
       if (ReaderLoopHandler handler = g_reader_loop_handler.exchange(nullptr)) handler();
     }
     return ++lost_shown_ <= kLostChangesShown;
@@ -341,10 +341,8 @@ class DdsLog final : public fdds::LogConsumer {
   fdds::Log::Kind shown_;
   std::optional<std::regex> categories_;
   fdds::StdoutErrConsumer printer_;  // warnings and errors on stderr, info on stdout
-  Clock::time_point window_start_{};
-  int errors_ = 0;
-  Clock::time_point lost_window_start_{};
-  int lost_in_window_ = 0;
+  Burst receive_errors_{std::chrono::seconds(1), 1000};  // a loop, not a socket closed
+  Burst lost_changes_{std::chrono::seconds(5), 1000};    // a loop, not a writer restarting
   long lost_shown_ = 0;
 };
 
@@ -863,7 +861,7 @@ struct Node::Impl {
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
   // Samples taken from a reader that MoveSubPartitions replaced, handed out by the next Wait().
   std::vector<Event> stashed;
-  // Readers that handed out one sample twice in a call (TakeAll), made anew by Wait(), and
+  // Readers that handed out one sample twice in a row (TakeAll), made anew by Wait(), and
   // those made anew so far (ReadersMadeAnew).
   std::set<Topic> readers_to_remake;
   std::vector<Topic> readers_made_anew;
@@ -1399,23 +1397,24 @@ void TakeAll(Node::Impl& d, Topic topic, std::vector<Event>& out, Convert conver
   if (it == d.readers.end()) return;
   // Kept from call to call: a batch's sequence keeps its storage (docs/BENCHMARKS.md).
   thread_local Idl sample;
-  // The samples with data taken in this call, by writer and sequence number (a few per peer).
-  thread_local std::set<std::pair<protocol::SenderKey, std::int64_t>> taken;
-  taken.clear();
+  // The writer and sequence number of the sample with data taken last in this call.
+  std::optional<std::pair<protocol::SenderKey, std::int64_t>> last;
   fdds::SampleInfo info;
   for (std::size_t n = 0;
        n < kMaxTakesPerWait && it->second->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK; ++n) {
     if (!info.valid_data) continue;  // news of an instance's state: no writer's sample
     // Fast DDS 2.9.1 can lose track of a change in a keyed reader's history ("Change not
     // found on this key, something is wrong", remove_change_sub): take then hands out that
-    // same change again and again, for good (docs/FASTDDS_NOTES.md, "A reader that hands out
-    // one sample for ever"). Only a new reader gets out of it.
+    // same change again and again, for good, each call the one before (docs/FASTDDS_NOTES.md,
+    // "A reader that hands out one sample for ever"). Only a new reader gets out of it.
     const auto& id = info.sample_identity;
-    const std::int64_t seq = static_cast<std::int64_t>(id.sequence_number().to64long());
-    if (!taken.emplace(ToKey(id.writer_guid()), seq).second) {
+    const std::pair<protocol::SenderKey, std::int64_t> taken{
+        ToKey(id.writer_guid()), static_cast<std::int64_t>(id.sequence_number().to64long())};
+    if (last == taken) {
       d.readers_to_remake.insert(topic);
       return;
     }
+    last = taken;
     const protocol::SenderKey from = ToKey(info.publication_handle);
     if (d.own_writers.count(from) > 0) continue;  // our own samples
     const double written_unix_s = static_cast<double>(info.source_timestamp.seconds()) +

@@ -183,7 +183,7 @@ class Node {
   // Samples this node's id_range readers dropped (keyed to an id outside the range).
   long DroppedByIdRange() const;
   // The readers that Wait() made anew since the last call, because one handed out the same
-  // sample twice in a call: Fast DDS 2.9.1 lost track of it in the reader's history and
+  // sample twice in a row: Fast DDS 2.9.1 lost track of it in the reader's history and
   // would hand it out for ever (docs/FASTDDS_NOTES.md, "A reader that hands out one sample
   // for ever"). The new reader gets the writers' histories again, as a late joiner does.
   std::vector<Topic> ReadersMadeAnew();
