@@ -487,8 +487,7 @@ def lockstep_run(n, steps, domain, work_dir, observer_exe=None, config_path=DEFA
         monitor.join()
         summary = result.summary if result else {}
         metrics = summary.get("metrics", {})
-        timed_out = bool(timeout_s) and (metrics.get("last_step") or 0) < steps and \
-            (summary.get("wall_time_s") or 0) >= 0.95 * timeout_s
+        timed_out = summary.get("timed_out_after_s") is not None
         obs = _stop_observer(observer, timed_out or result is None) if observer else None
         if observer:
             launcher.shm_cleanup(shm_before)

@@ -407,6 +407,7 @@ class Launcher:
         self.shm_before = shm_snapshot()
         self.started = time.time()
         self.interrupted = None
+        self.timed_out = False
 
     def _prepare_certs(self):
         """Issues the run's certificates (a CA of its own, permissions for this run's
@@ -776,6 +777,7 @@ class Launcher:
                 self._progress_line(step)
                 last_print = time.time()
             time.sleep(0.02)
+        self.timed_out = timed_out
         if timed_out:
             self._say(f"timeout after {self.timeout_s:.0f} s; stopping every process")
         for p in self.partitions:  # a partition still open heals before the end
@@ -827,7 +829,9 @@ class Launcher:
             self.hosts.remove()
         removed = shm_cleanup(self.shm_before)
         procs = []
-        ok = self.interrupted is None
+        # A run stopped by --timeout did not reach its last step: not ok, whatever its
+        # processes' exit status after the SIGTERM.
+        ok = self.interrupted is None and not self.timed_out
         for name, p in self.procs.items():
             status = p.exit_status
             expected = status == 0 or (p.expected_death and status in (-signal.SIGKILL, -signal.SIGTERM))
@@ -877,6 +881,7 @@ class Launcher:
             "metrics": metrics,
             "counters": counters,
             "interrupted_by_signal": self.interrupted,
+            "timed_out_after_s": self.timeout_s if self.timed_out else None,
             "ok": ok,
         }
         with open(os.path.join(self.out_dir, "summary.json"), "w") as f:

@@ -3,7 +3,7 @@ arguments that must be refused with exit status 2 and one line, and nothing star
 
 Environment (set by tests/cli/CMakeLists.txt, one ctest test per function):
   DEIF_BUILD_DIR    the build folder whose bin/ holds the executables
-  DEIF_TEST_DOMAIN  the DDS domain of this test (190..199), so no other run is disturbed
+  DEIF_TEST_DOMAIN  the DDS domain of this test (180..199), so no other run is disturbed
   DEIF_TEST_WORK    this test's work folder
 """
 import json
@@ -178,6 +178,29 @@ def test_two_runs_on_one_host_leave_each_other_alone(domain, work, reaper):
     assert [p["name"] for p in summary["processes"] if p["restarts_in_place"]] == []
     for j in range(1, agents_b + 1):
         assert summary["metrics"]["per_agent"][str(j)]["rows"] == steps_b
+
+
+def test_a_run_stopped_by_its_timeout_is_not_ok(domain, work):
+    """--timeout stops a run that has not reached its last step: every process ends, the run
+    is not ok (exit 1, summary.json ok false, with the timeout) even though every process
+    ended with status 0 on the launcher's SIGTERM, and stderr says why."""
+    out = os.path.join(work, "run")
+    timeout_s = 10
+    status, _, stderr = run_tool(
+        [PYTHON, DEIF_RUN, DEFAULT, "--agents", str(AGENTS), "--steps", "100000",
+         "--domain", str(domain), "--set", "scenario.mode=realtime", "--timeout", str(timeout_s),
+         "--quiet", "--out", out])
+    assert status == 1, stderr
+    assert (f"deif-run: the run did not reach its last step within {timeout_s} s and was stopped "
+            "(--timeout; summary.json: ok false)") in stderr
+    assert live_processes(out) == {}
+    with open(os.path.join(out, "summary.json")) as f:
+        summary = json.load(f)
+    assert summary["ok"] is False
+    assert summary["timed_out_after_s"] == timeout_s
+    assert summary["interrupted_by_signal"] is None
+    assert 0 < summary["metrics"]["last_step"] < 100000
+    assert all(p["exit_status"] == 0 for p in summary["processes"])
 
 
 def test_domain_out_of_range_starts_nothing(work):
