@@ -381,6 +381,9 @@ void AgentNode::WriteCounters() const {
                                    {"late", c.late},           {"deadline_misses", c.deadline_misses},
                                    {"adoptions", c.adoptions}, {"merges", c.merges},
                                    {"lapses_forgiven", protocol_.lapses_forgiven()},
+                                   {"losses_undone", protocol_.losses_undone()},
+                                   {"parent_losses_undone", tree_ ? tree_->parent_losses_undone() : 0},
+                                   {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", c.by_reason}, {"delivery_ms", delivery_.ToJson()}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) /
                  ("agent_" + std::to_string(id_) + ".counters.json")).string())

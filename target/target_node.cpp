@@ -242,6 +242,8 @@ void TargetNode::WriteCounters() const {
   for (const auto& [reason, count] : protocol_.rejected_by_reason()) rejected += count;
   const nlohmann::json counters = {{"rejected", rejected},
                                    {"lapses_forgiven", protocol_.lapses_forgiven()},
+                                   {"losses_undone", protocol_.losses_undone()},
+                                   {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", protocol_.rejected_by_reason()},
                                    {"delivery_ms", delivery_.ToJson()}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) / "target.counters.json").string())

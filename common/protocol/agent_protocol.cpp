@@ -48,7 +48,7 @@ AgentProtocol::AgentProtocol(const Config& config, AgentId id, Options options)
                                                       : config.filter.innovation_gate_sigma),
       position_m_(Vector2::Zero()),
       angle_rad_(0.0),
-      lapses_(config.network.liveliness_grace_s) {
+      lapses_(config.network.liveliness_grace_s, config.network.participant_lease_s) {
   DEIF_THROW_UNLESS(ValidAgentId(id, config), "agent id " + std::to_string(id) +
                                                   " is outside 1.." +
                                                   std::to_string(config.agents.count));
@@ -257,8 +257,16 @@ void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, doub
   const bool target = target_writer_ && writer == *target_writer_;
   const double grace_s = target || options_.peer_grace_s < 0.0 ? config_.network.liveliness_grace_s
                                                               : options_.peer_grace_s;
+  const double factor = lapses_.grace_factor();
   if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s, grace_s)) {
     ApplyLiveliness(writer, *change, now_s);
+  }
+  if (lapses_.grace_factor() > factor) {
+    const auto bound = writer_ids_.find(writer);
+    const std::string who = target ? "the target"
+                            : bound != writer_ids_.end() ? "agent " + std::to_string(bound->second)
+                                                         : "a writer";
+    Log(LogLevel::kWarn, GraceGrownLine(who, lapses_.grace_factor(), lapses_.GraceNow(grace_s)));
   }
 }
 

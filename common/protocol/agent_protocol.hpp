@@ -183,6 +183,10 @@ class AgentProtocol {
   const AgentCounters& counters() const { return counters_; }
   // Liveliness lapses that ended within network.liveliness_grace_s: a peer slow, not gone.
   long lapses_forgiven() const { return lapses_.ignored(); }
+  // Losses undone (the peer or target was back soon after), and how many times its grace a
+  // lapse is held now (docs/PROTOCOL.md, "Slow is not gone").
+  long losses_undone() const { return lapses_.losses_undone(); }
+  double grace_factor() const { return lapses_.grace_factor(); }
   // How many merges by covariance intersection were computed (BaseOf): once per step and
   // distinct set of posteriors its contributions carry, not once per contribution.
   long merges_computed() const { return merges_computed_; }

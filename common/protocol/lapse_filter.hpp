@@ -7,6 +7,7 @@
 
 #include <map>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "common/protocol/messages.hpp"
@@ -22,7 +23,10 @@ inline constexpr const char* kProcessEnded = "its process ended: the locks of it
 template <typename Key>
 class BasicLapseFilter {
  public:
-  explicit BasicLapseFilter(double grace_s) : grace_s_(grace_s) {}
+  // max_grace_s: how far the grace may grow after losses that were undone (below); at most
+  // grace_s, it never grows.
+  explicit BasicLapseFilter(double grace_s, double max_grace_s = 0.0)
+      : grace_s_(grace_s), max_grace_s_(max_grace_s) {}
 
   // A liveliness change as DDS reported it. Returns the change to act on now: a loss is
   // held for the grace (nullopt); a return within the grace cancels it (nullopt).
@@ -45,14 +49,52 @@ class BasicLapseFilter {
   // Lapses that ended within the grace (never acted on).
   long ignored() const { return ignored_; }
 
+  // A loss that is undone: a writer whose lapse outlasted its grace (Due) and that is back
+  // within kUndoneWithin x that grace (at least kUndoneWithinLeastS). Its process did not
+  // die: the network lost its renewals, several in a row, which a lossy link does for some
+  // pair of agents every few seconds. Each one doubles the grace of every writer from then on (docs/PROTOCOL.md, "Slow is not
+  // gone"), up to kMaxFactor times and to max_grace_s; kQuietS without one halves it again.
+  static constexpr double kMaxFactor = 8.0;
+  static constexpr double kUndoneWithin = 4.0;
+  static constexpr double kUndoneWithinLeastS = 1.0;
+  static constexpr double kQuietS = 60.0;
+  // How many times its grace a writer's lapse is now held (1, 2, 4 or 8; the cap
+  // max_grace_s can make the grace itself shorter).
+  double grace_factor() const { return factor_; }
+  long losses_undone() const { return undone_; }
+  // A loss found undone by other means (the writer's owner was heard of meanwhile): as a
+  // return within the window.
+  void NoteUndone(double now_s);
+  // The grace a writer whose own grace is grace_s has now.
+  double GraceNow(double grace_s) const;
+
  private:
+  struct Held {
+    double due_s;
+    double grace_s;  // as held (for the window in which its loss counts as undone)
+  };
+  struct Lost {
+    double at_s;
+    double window_s;
+  };
+  void Relax(double now_s);
+
   double grace_s_;
+  double max_grace_s_;
   double hold_until_s_ = -1.0;
-  std::map<Key, double> held_;  // writer -> when its loss is due
+  std::map<Key, Held> held_;  // writer -> when its loss is due
+  std::map<Key, Lost> lost_;  // writers whose loss came due, while a return would undo it
   long ignored_ = 0;
+  double factor_ = 1.0;
+  double factor_since_s_ = 0.0;  // when the factor last changed
+  long undone_ = 0;
 };
 
 using LapseFilter = BasicLapseFilter<SenderKey>;
+
+// What a process logs when a loss of `who` was undone and its grace grew to `factor` x
+// (`grace_s` now for `who`'s kind of writer).
+std::string GraceGrownLine(const std::string& who, double factor, double grace_s);
 extern template class BasicLapseFilter<SenderKey>;
 extern template class BasicLapseFilter<AgentId>;
 

@@ -17,7 +17,7 @@ std::string Describe(const FaultConfig& fault) {
 }  // namespace
 
 TargetProtocol::TargetProtocol(const Config& config, Options options)
-    : config_(config), options_(options), core_(config), lapses_(config.network.liveliness_grace_s) {}
+    : config_(config), options_(options), core_(config), lapses_(config.network.liveliness_grace_s, config.network.participant_lease_s) {}
 
 void TargetProtocol::Start(double now_s) {
   start_s_ = now_s;
@@ -69,8 +69,14 @@ void TargetProtocol::OnState(const StateMsg& msg, const SenderKey& from, double 
 void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
   const double grace_s = started() || options_.start_grace_s < 0.0 ? config_.network.liveliness_grace_s
                                                                    : options_.start_grace_s;
+  const double factor = lapses_.grace_factor();
   if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s, grace_s)) {
     ApplyLiveliness(writer, *change, now_s);
+  }
+  if (lapses_.grace_factor() > factor) {
+    const auto bound = writer_ids_.find(writer);
+    const std::string who = bound != writer_ids_.end() ? "agent " + std::to_string(bound->second) : "a writer";
+    Log(LogLevel::kWarn, GraceGrownLine(who, lapses_.grace_factor(), lapses_.GraceNow(grace_s)));
   }
 }
 

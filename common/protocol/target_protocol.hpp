@@ -94,6 +94,8 @@ class TargetProtocol {
   bool started() const { return phase_ != Phase::kWaitingForAgents; }
   // Liveliness lapses that ended within network.liveliness_grace_s: an agent slow, not gone.
   long lapses_forgiven() const { return lapses_.ignored(); }
+  long losses_undone() const { return lapses_.losses_undone(); }
+  double grace_factor() const { return lapses_.grace_factor(); }
   StepIndex current_step() const { return step_; }
   std::set<AgentId> AliveAgents() const;  // alive with a known state
   // The alive agents its ranges do not reach yet (OnRangeReaders): while it waits for them,

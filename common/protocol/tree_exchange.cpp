@@ -86,7 +86,7 @@ TreeExchange::TreeExchange(const Config& config, Options options)
       // agent-steps complete against 71 %).
       late_gather_s_(config.scenario.mode == StepMode::kLockStep ? 0.5 * RelayWaitS(config) : 0.0),
       keep_(static_cast<StepIndex>(config.network.history_steps + config.network.fusion_window_steps)),
-      parent_lapses_(config.network.liveliness_grace_s) {
+      parent_lapses_(config.network.liveliness_grace_s, config.network.participant_lease_s) {
   for (AgentId id = 1; id <= static_cast<AgentId>(config.agents.count); ++id) members_.insert(id);
   members_.insert(options_.self);
   given_ = members_;
@@ -132,6 +132,11 @@ void TreeExchange::CheckSilence(double now_s) {
   bool back = false;
   for (auto it = silent_.begin(); it != silent_.end();) {
     if (now_s >= it->second) {
+      // Still a member when its hold ends: the parent lived, and the network lost the
+      // renewals of its relay writer. Its lapses are held longer from now on (as an agent's
+      // of its peers, docs/PROTOCOL.md, "Slow is not gone"). (A parent the members lost
+      // left silent_ then, in SetMembers.)
+      if (given_.count(it->first) > 0) parent_lapses_.NoteUndone(now_s);
       it = silent_.erase(it);
       back = true;
     } else {

@@ -445,6 +445,10 @@ class Launcher:
     def _default_timeout(self):
         net = self.cfg["network"]
         per_step = float(self.cfg["scenario"]["period_s"]) if self.realtime else 0.05
+        if not self.realtime and self.loss:
+            # A lock-step step waits for every hop's repairs: 20 agents on 4 hosts took 0.1 s
+            # a step at 10 % loss and 0.5 s at 30 % (docs/RUNNING.md, "Several hosts").
+            per_step += 2.0 * self.loss
         # Discovery grows as N^2 (every endpoint is announced to every participant): 128
         # agents on 4 namespace hosts took 80-130 s to start on 2 cores.
         return (60.0 + 2 * float(net["start_timeout_s"]) + self.n ** 2 / 200.0

@@ -513,6 +513,43 @@ TEST_CASE("A peer's lapse is held for peer_grace_s, the target's for network.liv
   CHECK(has("agent 3 lost (liveliness)"));
 }
 
+TEST_CASE("A peer lost by its liveliness and back at once makes the agent hold lapses longer",
+          "[protocol]") {
+  // A lossy link drops several renewals of a live peer in a row now and then: the loss is
+  // undone by the next renewal. The agent then holds every lapse twice as long, so the same
+  // gap in the renewals is forgiven next time (docs/PROTOCOL.md, "Slow is not gone").
+  ScriptedNetwork net(kThreeAgents);
+  const double grace_s = net.config.network.liveliness_grace_s;
+  net.Start();
+  net.RunUntil(2);
+  const auto count = [&](const std::string& text) {
+    const auto& log = net.logs.at(1);
+    return std::count_if(log.begin(), log.end(), [&](const std::string& l) { return l.find(text) != std::string::npos; });
+  };
+  // WHEN agent 3's renewals stop reaching agent 1 for a little longer than the grace
+  net.Liveliness(1, 3, false);
+  net.AdvanceTime(1.1 * grace_s);
+  CHECK(count("agent 3 lost (liveliness)") == 1);
+  net.Liveliness(1, 3, true);  // the next renewal
+  // THEN the loss is undone, said once, with the longer grace
+  CHECK(net.agents.at(1)->Members().size() == 3);
+  CHECK(count("agent 3, taken for lost by its liveliness, is back: the network loses renewals, so a lapse is "
+              "now held for 2 x the grace") == 1);
+  CHECK(net.agents.at(1)->losses_undone() == 1);
+  // AND the same gap again is forgiven: no loss, nothing written without agent 3
+  net.Liveliness(1, 3, false);
+  net.AdvanceTime(1.1 * grace_s);
+  net.Liveliness(1, 3, true);
+  CHECK(count("agent 3 lost (liveliness)") == 1);
+  CHECK(net.agents.at(1)->lapses_forgiven() == 1);
+  // AND a peer that stays silent is still lost, after twice the grace
+  net.Liveliness(1, 2, false);
+  net.AdvanceTime(1.5 * grace_s);
+  CHECK(net.agents.at(1)->Members().count(2) == 1);
+  net.AdvanceTime(0.6 * grace_s);
+  CHECK(net.agents.at(1)->Members().count(2) == 0);
+}
+
 TEST_CASE("A held lapse of a peer the target's roll call no longer names counts at once",
           "[protocol]") {
   // The longer peer grace spares a peer the rest of the network still hears; a peer the

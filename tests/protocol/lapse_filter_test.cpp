@@ -104,3 +104,91 @@ TEST_CASE("A writer's lapse can have a grace of its own", "[protocol][lapse]") {
   CHECK(filter.ignored() == 1);
   CHECK(filter.Due(100.0).empty());
 }
+
+namespace {
+// A lapse of `writer` at t that outlasts the filter's grace: reported, then due.
+void LoseAt(LapseFilter& filter, const SenderKey& writer, double t) {
+  REQUIRE_FALSE(filter.Report(writer, false, t).has_value());
+  const double due_s = *filter.NextDue();
+  const auto due = filter.Due(due_s);
+  REQUIRE(due.size() == 1);
+  REQUIRE(due[0] == writer);
+}
+}  // namespace
+
+TEST_CASE("A loss undone soon after doubles the grace, up to 8 x and the cap", "[protocol][lapse]") {
+  LapseFilter filter(0.2, 5.0);
+  CHECK(filter.grace_factor() == 1.0);
+  LoseAt(filter, Writer(1), 10.0);  // due at 10.2
+  const auto back = filter.Report(Writer(1), true, 10.21);  // a renewal just after: undone
+  REQUIRE(back.has_value());
+  CHECK(*back);  // still acted on: the loss was
+  CHECK(filter.losses_undone() == 1);
+  CHECK(filter.grace_factor() == 2.0);
+  // Every writer's lapse is held twice as long now.
+  CHECK_FALSE(filter.Report(Writer(2), false, 11.0).has_value());
+  CHECK(filter.NextDue() == Approx(11.4));
+  CHECK(filter.Due(11.39).empty());
+  CHECK_FALSE(filter.Report(Writer(2), true, 11.39).has_value());  // within the longer grace
+  for (double t : {12.0, 13.0, 14.0, 15.0}) {
+    LoseAt(filter, Writer(3), t);
+    filter.Report(Writer(3), true, t + 0.9);
+  }
+  CHECK(filter.losses_undone() == 5);
+  CHECK(filter.grace_factor() == LapseFilter::kMaxFactor);
+  CHECK(filter.GraceNow(0.2) == Approx(1.6));
+  CHECK(filter.GraceNow(1.0) == Approx(5.0));  // no longer than the cap
+  CHECK(filter.GraceNow(6.0) == Approx(6.0));  // a grace above the cap stays as it is
+}
+
+TEST_CASE("A writer back long after its loss, or never lost, leaves the grace as it is", "[protocol][lapse]") {
+  LapseFilter filter(0.2, 5.0);
+  LoseAt(filter, Writer(1), 10.0);
+  // Back after the window (4 x its grace, at least 1 s): it was gone for a while (frozen,
+  // restarted, cut off), which says nothing of the network's renewals.
+  filter.Report(Writer(1), true, 10.2 + 1.01);
+  CHECK(filter.losses_undone() == 0);
+  CHECK(filter.grace_factor() == 1.0);
+  // A lapse forgiven within the grace: not a loss, so not an undone one.
+  filter.Report(Writer(2), false, 20.0);
+  filter.Report(Writer(2), true, 20.1);
+  CHECK(filter.losses_undone() == 0);
+  // A loss confirmed by other means (its process ended): a return is a new writer's matter.
+  filter.Report(Writer(3), false, 30.0);
+  CHECK(filter.Confirm(Writer(3)));
+  filter.Report(Writer(3), true, 30.05);
+  CHECK(filter.grace_factor() == 1.0);
+}
+
+TEST_CASE("The grown grace halves after each quiet minute", "[protocol][lapse]") {
+  LapseFilter filter(0.2, 5.0);
+  for (double t : {10.0, 20.0}) {
+    LoseAt(filter, Writer(1), t);
+    filter.Report(Writer(1), true, t + 0.5);
+  }
+  CHECK(filter.grace_factor() == 4.0);  // the last at 20.5
+  filter.Report(Writer(2), false, 20.5 + LapseFilter::kQuietS - 0.1);
+  CHECK(filter.grace_factor() == 4.0);
+  filter.Due(20.5 + LapseFilter::kQuietS);
+  CHECK(filter.grace_factor() == 2.0);
+  filter.Due(20.5 + 2 * LapseFilter::kQuietS + 0.1);
+  CHECK(filter.grace_factor() == 1.0);
+  filter.Due(20.5 + 10 * LapseFilter::kQuietS);
+  CHECK(filter.grace_factor() == 1.0);
+}
+
+TEST_CASE("Without a cap above it, or with a grace of 0, the grace never grows", "[protocol][lapse]") {
+  LapseFilter fixed(0.2);
+  LoseAt(fixed, Writer(1), 10.0);
+  fixed.Report(Writer(1), true, 10.25);
+  CHECK(fixed.losses_undone() == 1);  // counted all the same
+  CHECK(fixed.GraceNow(0.2) == Approx(0.2));
+  LapseFilter none(0.0, 5.0);
+  for (double t : {10.0, 11.0}) {
+    const auto lost = none.Report(Writer(1), false, t);
+    REQUIRE(lost.has_value());  // every lapse a loss, as configured
+    CHECK_FALSE(*lost);
+    none.Report(Writer(1), true, t + 0.1);
+  }
+  CHECK(none.GraceNow(0.0) == 0.0);
+}

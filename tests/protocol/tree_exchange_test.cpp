@@ -636,6 +636,19 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   child.OnTimer(3.0 + grace + 1.0);
   CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{2, 0}});
   CHECK(child.place().parent == AgentId{2});
+  // That parent lived: the network lost its renewals, so its lapses are held twice as long
+  // from now on (docs/PROTOCOL.md, "Slow is not gone"), and the same silence moves nobody.
+  CHECK(child.parent_losses_undone() == 1);
+  child.OnParentLiveliness(2, false, 6.0);
+  child.OnTimer(6.0 + 1.5 * grace);
+  CHECK(moves().empty());
+  child.OnParentLiveliness(2, true, 6.0 + 1.5 * grace);
+  child.OnTimer(6.0 + 3.0 * grace);
+  CHECK(moves().empty());
+  // A longer one still does.
+  child.OnParentLiveliness(2, false, 7.0);
+  child.OnTimer(7.0 + 2.0 * grace);
+  CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{1, 2}});
 }
 
 TEST_CASE("After this agent was away, its parent's lapse counts only once it outlasts the hold",
