@@ -265,7 +265,7 @@ void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, doub
     const auto bound = writer_ids_.find(writer);
     const std::string who = target ? "the target"
                             : bound != writer_ids_.end() ? "agent " + std::to_string(bound->second)
-                                                         : "a writer";
+                                                         : "a peer's writer";
     Log(LogLevel::kWarn, GraceGrownLine(who, lapses_.grace_factor(), lapses_.GraceNow(grace_s)));
   }
 }

@@ -75,7 +75,7 @@ void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, dou
   }
   if (lapses_.grace_factor() > factor) {
     const auto bound = writer_ids_.find(writer);
-    const std::string who = bound != writer_ids_.end() ? "agent " + std::to_string(bound->second) : "a writer";
+    const std::string who = bound != writer_ids_.end() ? "agent " + std::to_string(bound->second) : "an agent's writer";
     Log(LogLevel::kWarn, GraceGrownLine(who, lapses_.grace_factor(), lapses_.GraceNow(grace_s)));
   }
 }

@@ -446,8 +446,8 @@ class Launcher:
         net = self.cfg["network"]
         per_step = float(self.cfg["scenario"]["period_s"]) if self.realtime else 0.05
         if not self.realtime and self.loss:
-            # A lock-step step waits for every hop's repairs: 20 agents on 4 hosts took 0.1 s
-            # a step at 10 % loss and 0.5 s at 30 % (docs/RUNNING.md, "Several hosts").
+            # A lock-step step waits for every hop's repairs: 20 agents on 4 hosts took 0.12 s
+            # a step at 10 % loss and 0.45 s at 30 % (docs/RUNNING.md, "Several hosts on one machine").
             per_step += 2.0 * self.loss
         # Discovery grows as N^2 (every endpoint is announced to every participant): 128
         # agents on 4 namespace hosts took 80-130 s to start on 2 cores.
