@@ -491,7 +491,10 @@ void AddNetwork(std::vector<KeySpec>* keys) {
            "its last write. 0: every lapse is a loss. In the tree exchange from 28 agents "
            "on, where a peer's writer renews its liveliness only twice a lease, an agent "
            "holds a peer's lapse until 4 renewals in a row went missing if that is longer: "
-           "0.79 s at 32 agents, 3.12 s at 64 (docs/PROTOCOL.md, \"Slow is not gone\").");
+           "0.92 s at 32 agents, 3.64 s at 64. Each loss that is undone soon after (the "
+           "writer back: the network lost its renewals) doubles the grace a process gives "
+           "from then on, up to 8 x and participant_lease_s; a minute without one halves it "
+           "(docs/PROTOCOL.md, \"Slow is not gone\").");
   t.Add("liveliness_assertions_per_lease",
         [](Config& c) -> auto& { return c.network.liveliness_assertions_per_lease; })
       .Default(8)

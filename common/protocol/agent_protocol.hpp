@@ -184,7 +184,7 @@ class AgentProtocol {
   // Liveliness lapses that ended within network.liveliness_grace_s: a peer slow, not gone.
   long lapses_forgiven() const { return lapses_.ignored(); }
   // Losses undone (the peer or target was back soon after), and how many times its grace a
-  // lapse is held now (docs/PROTOCOL.md, "Slow is not gone").
+  // lapse is held now (docs/PROTOCOL.md, "Losses that are undone").
   long losses_undone() const { return lapses_.losses_undone(); }
   double grace_factor() const { return lapses_.grace_factor(); }
   // How many merges by covariance intersection were computed (BaseOf): once per step and

@@ -90,7 +90,7 @@ std::string GraceGrownLine(const std::string& who, double factor, double grace_s
   char text[256];
   std::snprintf(text, sizeof text,
                 "%s, taken for lost by its liveliness, is back: the network loses renewals, so a lapse is now "
-                "held for %g x the grace (%.2f s) before it counts (docs/PROTOCOL.md, \"Slow is not gone\")",
+                "held for %g x the grace (%.2f s) before it counts (docs/PROTOCOL.md, \"Losses that are undone\")",
                 who.c_str(), factor, grace_s);
   return text;
 }

@@ -52,8 +52,9 @@ class BasicLapseFilter {
   // A loss that is undone: a writer whose lapse outlasted its grace (Due) and that is back
   // within kUndoneWithin x that grace (at least kUndoneWithinLeastS). Its process did not
   // die: the network lost its renewals, several in a row, which a lossy link does for some
-  // pair of agents every few seconds. Each one doubles the grace of every writer from then on (docs/PROTOCOL.md, "Slow is not
-  // gone"), up to kMaxFactor times and to max_grace_s; kQuietS without one halves it again.
+  // pair of agents every few seconds. Each one doubles the grace of every writer from then
+  // on, up to kMaxFactor times and to max_grace_s; kQuietS without one halves it again
+  // (docs/PROTOCOL.md, "Losses that are undone").
   static constexpr double kMaxFactor = 8.0;
   static constexpr double kUndoneWithin = 4.0;
   static constexpr double kUndoneWithinLeastS = 1.0;
@@ -91,11 +92,11 @@ class BasicLapseFilter {
 };
 
 using LapseFilter = BasicLapseFilter<SenderKey>;
+extern template class BasicLapseFilter<SenderKey>;
+extern template class BasicLapseFilter<AgentId>;
 
 // What a process logs when a loss of `who` was undone and its grace grew to `factor` x
 // (`grace_s` now for `who`'s kind of writer).
 std::string GraceGrownLine(const std::string& who, double factor, double grace_s);
-extern template class BasicLapseFilter<SenderKey>;
-extern template class BasicLapseFilter<AgentId>;
 
 }  // namespace deif::protocol

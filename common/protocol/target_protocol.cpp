@@ -17,7 +17,10 @@ std::string Describe(const FaultConfig& fault) {
 }  // namespace
 
 TargetProtocol::TargetProtocol(const Config& config, Options options)
-    : config_(config), options_(options), core_(config), lapses_(config.network.liveliness_grace_s, config.network.participant_lease_s) {}
+    : config_(config),
+      options_(options),
+      core_(config),
+      lapses_(config.network.liveliness_grace_s, config.network.participant_lease_s) {}
 
 void TargetProtocol::Start(double now_s) {
   start_s_ = now_s;
@@ -75,7 +78,8 @@ void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, dou
   }
   if (lapses_.grace_factor() > factor) {
     const auto bound = writer_ids_.find(writer);
-    const std::string who = bound != writer_ids_.end() ? "agent " + std::to_string(bound->second) : "an agent's writer";
+    const std::string who =
+        bound != writer_ids_.end() ? "agent " + std::to_string(bound->second) : "an agent's writer";
     Log(LogLevel::kWarn, GraceGrownLine(who, lapses_.grace_factor(), lapses_.GraceNow(grace_s)));
   }
 }

@@ -134,7 +134,7 @@ void TreeExchange::CheckSilence(double now_s) {
     if (now_s >= it->second) {
       // Still a member when its hold ends: the parent lived, and the network lost the
       // renewals of its relay writer. Its lapses are held longer from now on (as an agent's
-      // of its peers, docs/PROTOCOL.md, "Slow is not gone"). (A parent the members lost
+      // of its peers, docs/PROTOCOL.md, "Losses that are undone"). (A parent the members lost
       // left silent_ then, in SetMembers.)
       if (given_.count(it->first) > 0) parent_lapses_.NoteUndone(now_s);
       it = silent_.erase(it);

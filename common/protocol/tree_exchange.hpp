@@ -139,7 +139,7 @@ class TreeExchange {
   // could not keep up; taken after each wake-up's samples, those of one wake-up go as one).
   std::vector<TreeAction> TakeActions();
 
-  // The parent's relay lapses undone (docs/PROTOCOL.md, "Slow is not gone").
+  // The parent's relay lapses undone (docs/PROTOCOL.md, "Losses that are undone").
   long parent_losses_undone() const { return parent_lapses_.losses_undone(); }
   const TreePlace& place() const { return place_; }
   const std::set<AgentId>& members() const { return members_; }

@@ -517,7 +517,7 @@ TEST_CASE("A peer lost by its liveliness and back at once makes the agent hold l
           "[protocol]") {
   // A lossy link drops several renewals of a live peer in a row now and then: the loss is
   // undone by the next renewal. The agent then holds every lapse twice as long, so the same
-  // gap in the renewals is forgiven next time (docs/PROTOCOL.md, "Slow is not gone").
+  // gap in the renewals is forgiven next time (docs/PROTOCOL.md, "Losses that are undone").
   ScriptedNetwork net(kThreeAgents);
   const double grace_s = net.config.network.liveliness_grace_s;
   net.Start();

@@ -637,7 +637,7 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{2, 0}});
   CHECK(child.place().parent == AgentId{2});
   // That parent lived: the network lost its renewals, so its lapses are held twice as long
-  // from now on (docs/PROTOCOL.md, "Slow is not gone"), and the same silence moves nobody.
+  // from now on (docs/PROTOCOL.md, "Losses that are undone"), and the same silence moves nobody.
   CHECK(child.parent_losses_undone() == 1);
   child.OnParentLiveliness(2, false, 6.0);
   child.OnTimer(6.0 + 1.5 * grace);
