@@ -383,6 +383,7 @@ void AgentNode::WriteCounters() const {
                                    {"lapses_forgiven", protocol_.lapses_forgiven()},
                                    {"losses_undone", protocol_.losses_undone()},
                                    {"parent_losses_undone", tree_ ? tree_->parent_losses_undone() : 0},
+                                   {"links_down_remade", tree_ ? tree_->links_down_remade() : 0},
                                    {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", c.by_reason}, {"delivery_ms", delivery_.ToJson()}};
   std::ofstream((std::filesystem::path(context_.options.out_dir) /
@@ -479,6 +480,14 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
         context_.log->info("tree exchange: parent now {} ({} members)", ParentName(reparent->parent),
                            tree_->members().size());
       }
+    } else if (const auto* remake = std::get_if<act::RemakeLinkDown>(&action)) {
+      context_.log->warn(
+          "tree exchange: nothing came down from parent agent {} for {:.1f} s over {} steps, its relay writer "
+          "alive ({} matched): the link down is made anew (docs/SCALING.md, \"A link down that hears nothing\")",
+          remake->parent, remake->silent_s, protocol::TreeExchange::kDeafRollCalls,
+          node_.MatchedWriters(dds::Topic::kRelayDown));
+      node_.RemakeReader(dds::Topic::kRelayDown);
+      parent_writers_.clear();  // the parent's next batch names its writer again
     } else if (const auto* reject = std::get_if<act::Reject>(&action)) {
       protocol_.OnRelayRejected(reject->reason, reject->count);
     }

@@ -1232,6 +1232,13 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
   ReplaceReader(d, topic, [&](fdds::Subscriber* s) { moved(reader_suffix, s, "subscriber"); });
 }
 
+void Node::RemakeReader(Topic topic) {
+  Impl& d = *impl_;
+  if (d.readers.count(topic) == 0) return;
+  TakeTopic(d, topic, d.stashed);
+  ReplaceReader(d, topic);
+}
+
 void Node::MakePassive() {
   if (!impl_->writers.empty()) throw std::logic_error("a node with writers cannot become passive");
   impl_->passive = true;

@@ -91,6 +91,11 @@ class Node {
   // assertions is moved, not made anew.
   // From the thread that calls Wait(), never during it.
   void MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
+  // Deletes this node's reader of `topic` and makes it anew in the same partitions, with the
+  // same QoS and listener: a reader no writer has a record of, announced afresh (a child of
+  // the tree exchange that hears nothing from its parent, docs/SCALING.md). What the old
+  // one held comes out of the next Wait(). From the thread that calls Wait(), never during it.
+  void RemakeReader(Topic topic);
   // Deletes this node's reader of `topic` (and its content filter), if it has one: the
   // peers' writers stop matching it. From the thread that calls Wait(), never during it.
   void RemoveReader(Topic topic);

@@ -161,6 +161,9 @@ void TreeExchange::Rebuild(double now_s, std::optional<AgentId> silent) {
   });
   if (place_.parent != old_parent) {
     actions_.push_back(tree_action::Reparent{place_.parent, silent});
+    parent_heard_s_ = -1.0;  // a new parent: its silence counts from the next roll call
+    roll_calls_unheard_ = 0;
+    deaf_after_s_ = kDeafAfterS;
     // The new parent gets all this agent holds of the kept steps: the old one may have
     // died with it. A new root sends down what it holds and had only sent up.
     SendOutward(Requeue(unsent_up_, &StepState::sent_up, /*skip_from_above=*/true));
@@ -195,12 +198,31 @@ TreeExchange::StepState* TreeExchange::StateOf(StepIndex step, double now_s) {
 void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_call, double now_s) {
   if (step < 1 || step > config_.scenario.steps) return;
   heard_roll_call_ = true;
+  if (step > parent_checked_step_) {  // a new step, of which something should come down
+    parent_checked_step_ = step;
+    CheckParentHeard(now_s);
+  }
   newest_ = std::max(newest_, step);
   Trim();
   StepState* s = StateOf(step, now_s);
   if (s == nullptr) return;
   if (!s->roll_call) s->roll_call.emplace(roll_call.begin(), roll_call.end());
   TryFlush(step, now_s);
+}
+
+void TreeExchange::CheckParentHeard(double now_s) {
+  if (!place_.parent) return;
+  if (parent_heard_s_ < 0.0) parent_heard_s_ = now_s;  // the first roll call: counts from now
+  ++roll_calls_unheard_;
+  if (roll_calls_unheard_ < kDeafRollCalls || now_s - parent_heard_s_ < deaf_after_s_) return;
+  // Its relay writer lives (no lapse), yet nothing of the last steps came down: this agent's
+  // reader of it is made anew, a reader the parent's writer has no record of and that is
+  // announced afresh (docs/SCALING.md, "A link down that hears nothing").
+  actions_.push_back(tree_action::RemakeLinkDown{*place_.parent, now_s - parent_heard_s_});
+  ++links_down_remade_;
+  parent_heard_s_ = now_s;
+  roll_calls_unheard_ = 0;
+  deaf_after_s_ = std::min(kDeafAfterMaxS, 2.0 * deaf_after_s_);
 }
 
 void TreeExchange::OnOwn(const ContributionMsg& msg, double now_s) {
@@ -275,6 +297,11 @@ void TreeExchange::OnBatch(const BatchMsg& batch, double now_s) {
     Trim();
   }
   for (const RelayedContribution& item : batch.items) Take(item, batch.down, now_s);
+  if (batch.down && place_.parent == batch.sender_id) {
+    parent_heard_s_ = now_s;
+    roll_calls_unheard_ = 0;
+    deaf_after_s_ = kDeafAfterS;
+  }
   if (batch.down) {
     // From the parent: passed on to the children, with what this agent holds, as the
     // actions are taken: the batches of one wake-up go on as one (FlushForwarded).

@@ -76,6 +76,13 @@ struct Reparent {  // this agent's parent is now `parent` (nullopt: it is the ro
   std::optional<AgentId> parent;
   std::optional<AgentId> silent;  // the parent it left because it fell silent (OnParentLiveliness)
 };
+// Nothing came down from the parent (alive: no lapse) through TreeExchange::kDeafRollCalls
+// roll calls and for `silent_s`: this agent's link down from it is made anew (its reader of
+// the relay topic), as after a move.
+struct RemakeLinkDown {
+  AgentId parent = 0;
+  double silent_s = 0.0;
+};
 struct Reject {  // an invalid batch or item, counted like any rejected message
   std::string reason;
   std::int64_t count = 1;
@@ -83,7 +90,7 @@ struct Reject {  // an invalid batch or item, counted like any rejected message
 }  // namespace tree_action
 
 using TreeAction = std::variant<tree_action::Send, tree_action::Deliver, tree_action::Reparent,
-                                tree_action::Reject>;
+                                tree_action::Reject, tree_action::RemakeLinkDown>;
 
 class TreeExchange {
  public:
@@ -142,6 +149,13 @@ class TreeExchange {
   // The parent's relay lapses undone (docs/PROTOCOL.md, "Losses that are undone").
   long parent_losses_undone() const { return parent_lapses_.losses_undone(); }
   const TreePlace& place() const { return place_; }
+  // A parent that is not silent (its relay writer lives) but from which nothing comes down
+  // (docs/SCALING.md, "A link down that hears nothing"): after kDeafRollCalls roll calls
+  // and kDeafAfterS, then twice as long after each remake, until a batch comes.
+  static constexpr int kDeafRollCalls = 5;
+  static constexpr double kDeafAfterS = 1.0;
+  static constexpr double kDeafAfterMaxS = 30.0;
+  long links_down_remade() const { return links_down_remade_; }
   const std::set<AgentId>& members() const { return members_; }
   // What it holds: contributions of the kept steps, and queued entries not yet sent.
   std::size_t kept_items() const;
@@ -215,6 +229,14 @@ class TreeExchange {
   // Items (step, origin id) stored and not yet sent up / down, in arrival order.
   std::vector<std::pair<StepIndex, AgentId>> unsent_up_, unsent_down_;
   std::vector<TreeAction> actions_;
+  // What came down from the current parent: when last (or when it became the parent), the
+  // roll calls since, and how long a silence makes the link down anew now.
+  void CheckParentHeard(double now_s);
+  double parent_heard_s_ = -1.0;
+  int roll_calls_unheard_ = 0;
+  StepIndex parent_checked_step_ = 0;  // the newest roll call counted
+  double deaf_after_s_ = kDeafAfterS;
+  long links_down_remade_ = 0;
 };
 
 }  // namespace deif::protocol

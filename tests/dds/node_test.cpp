@@ -374,6 +374,17 @@ TEST_CASE("a reader made anew is reported once and gets its writer's history and
     return got.size() >= 3;
   }));
   CHECK(got == std::vector<deif::StepIndex>{7, 7, 8});
+
+  // RemakeReader (a child of the tree that hears nothing from its parent) does the same,
+  // and is not reported as a reader that handed out a sample twice.
+  reader.RemakeReader(Topic::kAgentState);
+  REQUIRE(Within(10.0, writer, [&] {
+    take(reader);
+    return got.size() >= 4;
+  }));
+  CHECK(got.back() == 8);  // the writer's history again
+  CHECK(reader.ReadersMadeAnew().empty());
+  CHECK(Within(10.0, writer, [&] { return writer.MatchedReaders(Topic::kAgentState) == 1; }));  // the old one gone
 }
 
 TEST_CASE("a node sees its run's target up before the target has any endpoint, and not another "

@@ -825,3 +825,68 @@ TEST_CASE("In lock-step a relay names the children whose batch it still waits fo
   rt.Step(1, Range(1, 7), 1.0);
   CHECK_FALSE(rt.agents.at(2)->ChildrenWaitedForFromS(0.1));
 }
+
+TEST_CASE("A child that hears nothing from a live parent makes its link down anew, less and less often",
+          "[protocol][tree]") {
+  // 13 agents, fan-out 3: agent 5's parent is 2. Its relay writer lives (no lapse), but no
+  // batch of it comes down: the child's reader of it is made anew (docs/SCALING.md, "A link
+  // down that hears nothing").
+  const deif::Config config = ConfigFor(13, 3);
+  TreeExchange child(config, TreeExchange::Options{5, kRun, WriterOf(5)});
+  std::vector<AgentId> all;
+  for (AgentId a = 1; a <= 13; ++a) all.push_back(a);
+  child.SetMembers(std::set<AgentId>(all.begin(), all.end()), 0.0);
+  child.TakeActions();
+  REQUIRE(child.place().parent == AgentId{2});
+  const auto remakes = [&child] {
+    std::vector<double> out;  // silent_s of each
+    for (const auto& a : child.TakeActions()) {
+      if (const auto* r = std::get_if<protocol::tree_action::RemakeLinkDown>(&a)) {
+        CHECK(r->parent == 2);
+        out.push_back(r->silent_s);
+      }
+    }
+    return out;
+  };
+  const auto down = [](AgentId sender, StepIndex step) {
+    BatchMsg b;
+    b.run = kRun;
+    b.sender_id = sender;
+    b.step = step;
+    b.down = true;
+    return b;
+  };
+  // Roll calls every 0.1 s with a batch from the parent each step: never.
+  StepIndex k = 1;
+  double t = 1.0;
+  for (; k <= 20; ++k, t += 0.1) {
+    child.OnRollCall(k, all, t);
+    child.OnBatch(down(2, k), t + 0.01);
+  }
+  CHECK(remakes().empty());
+  // Nothing from the parent from now on (a batch from another agent does not count): the
+  // first roll call 1 s after the last batch makes it anew.
+  const double last_heard = t - 0.1 + 0.01;
+  // Roll calls every 0.1 s, from `from` while before `until`, none of which may remake it;
+  // then one at `until`, which must. Returns the silence it reported.
+  const auto silent_until = [&](double from, double until) {
+    for (t = from; t < until - 0.05; ++k, t += 0.1) {
+      child.OnRollCall(k, all, t);
+      child.OnBatch(down(3, k), t + 0.01);
+      CHECK(remakes().empty());
+    }
+    child.OnRollCall(k++, all, until);
+    t = until;
+    const auto made = remakes();
+    REQUIRE(made.size() == 1);
+    return made[0];
+  };
+  CHECK(silent_until(t, last_heard + 1.02) == Approx(1.02));
+  CHECK(child.links_down_remade() == 1);
+  // Still nothing: the next one after 2 s, not 1.
+  CHECK(silent_until(t + 0.1, t + 2.02) == Approx(2.02));
+  // A batch from the parent: heard again, and back to 1 s.
+  child.OnBatch(down(2, k - 1), t + 0.01);
+  CHECK(silent_until(t + 0.1, t + 0.01 + 1.02) == Approx(1.02));
+  CHECK(child.links_down_remade() == 3);
+}
