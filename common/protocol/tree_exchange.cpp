@@ -119,7 +119,13 @@ void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
   CheckSilence(now_s);
 }
 
-void TreeExchange::OnAway(double now_s, double hold_s) { parent_lapses_.HoldUntil(now_s + hold_s); }
+void TreeExchange::OnAway(double now_s, double hold_s) {
+  parent_lapses_.HoldUntil(now_s + hold_s);
+  // The roll calls and batches queued while it was away come now, in any order: the
+  // parent's silence counts from here.
+  if (parent_heard_s_ >= 0.0) parent_heard_s_ = now_s;
+  roll_calls_unheard_ = 0;
+}
 
 void TreeExchange::LeaveSilent(AgentId parent, double now_s) {
   if (place_.parent != parent) return;  // it moved meanwhile

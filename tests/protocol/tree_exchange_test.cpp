@@ -888,5 +888,11 @@ TEST_CASE("A child that hears nothing from a live parent makes its link down ane
   // A batch from the parent: heard again, and back to 1 s.
   child.OnBatch(down(2, k - 1), t + 0.01);
   CHECK(silent_until(t + 0.1, t + 0.01 + 1.02) == Approx(1.02));
+  // This agent itself away for 3 s (frozen): the roll calls queued meanwhile come at once
+  // on its return, before its parent's batches; the silence counts from its return.
+  child.OnBatch(down(2, k - 1), t + 0.01);
+  child.OnAway(t + 3.0, 0.6);
+  for (int i = 0; i < 10; ++i) child.OnRollCall(k++, all, t + 3.0);
+  CHECK(remakes().empty());
   CHECK(child.links_down_remade() == 3);
 }
