@@ -219,8 +219,11 @@ void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_c
 void TreeExchange::CheckParentHeard(double now_s) {
   if (!place_.parent) return;
   if (parent_heard_s_ < 0.0) parent_heard_s_ = now_s;  // the first roll call: counts from now
-  ++roll_calls_unheard_;
-  if (roll_calls_unheard_ < kDeafRollCalls || now_s - parent_heard_s_ < deaf_after_s_) return;
+  // Counted from the first roll call unheard, not from the last batch: after a silence of
+  // the whole network (a partition that healed) the roll calls come in a burst, before the
+  // parent's batches of their steps.
+  if (roll_calls_unheard_++ == 0) first_unheard_s_ = now_s;
+  if (roll_calls_unheard_ < kDeafRollCalls || now_s - first_unheard_s_ < deaf_after_s_) return;
   // Its relay writer lives (no lapse), yet nothing of the last steps came down: this agent's
   // reader of it is made anew, a reader the parent's writer has no record of and that is
   // announced afresh (docs/SCALING.md, "A link down that hears nothing").

@@ -151,7 +151,7 @@ class TreeExchange {
   const TreePlace& place() const { return place_; }
   // A parent that is not silent (its relay writer lives) but from which nothing comes down
   // (docs/SCALING.md, "A link down that hears nothing"): after kDeafRollCalls roll calls
-  // and kDeafAfterS, then twice as long after each remake, until a batch comes.
+  // over kDeafAfterS, then twice as long after each remake, until a batch comes.
   static constexpr int kDeafRollCalls = 5;
   static constexpr double kDeafAfterS = 1.0;
   static constexpr double kDeafAfterMaxS = 30.0;
@@ -234,6 +234,7 @@ class TreeExchange {
   void CheckParentHeard(double now_s);
   double parent_heard_s_ = -1.0;
   int roll_calls_unheard_ = 0;
+  double first_unheard_s_ = 0.0;  // when the first of those came
   StepIndex parent_checked_step_ = 0;  // the newest roll call counted
   double deaf_after_s_ = kDeafAfterS;
   long links_down_remade_ = 0;
