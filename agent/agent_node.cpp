@@ -481,11 +481,11 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
                            tree_->members().size());
       }
     } else if (const auto* remake = std::get_if<act::RemakeLinkDown>(&action)) {
+      if (tree_->place().parent != remake->parent) continue;  // it moved since: its link is new
       context_.log->warn(
           "tree exchange: nothing came down from parent agent {} for {:.1f} s over {} steps, its relay writer "
-          "alive ({} matched): the link down is made anew (docs/SCALING.md, \"A link down that hears nothing\")",
-          remake->parent, remake->silent_s, protocol::TreeExchange::kDeafRollCalls,
-          node_.MatchedWriters(dds::Topic::kRelayDown));
+          "alive: the link down is made anew (docs/SCALING.md, \"A link down that hears nothing\")",
+          remake->parent, remake->silent_s, protocol::TreeExchange::kDeafRollCalls);
       node_.RemakeReader(dds::Topic::kRelayDown);
       parent_writers_.clear();  // the parent's next batch names its writer again
     } else if (const auto* reject = std::get_if<act::Reject>(&action)) {

@@ -219,9 +219,11 @@ void TreeExchange::OnRollCall(StepIndex step, const std::vector<AgentId>& roll_c
 void TreeExchange::CheckParentHeard(double now_s) {
   if (!place_.parent) return;
   if (parent_heard_s_ < 0.0) parent_heard_s_ = now_s;  // the first roll call: counts from now
-  // Counted from the first roll call unheard, not from the last batch: after a silence of
-  // the whole network (a partition that healed) the roll calls come in a burst, before the
-  // parent's batches of their steps.
+  // Counted from the first roll call unheard, not from the last batch, and afresh after a
+  // gap in the roll calls themselves: after a silence of the whole network (a partition
+  // that healed) the roll calls come in a burst, before the parent's batches of their steps.
+  if (roll_calls_unheard_ > 0 && now_s - last_roll_call_s_ > kDeafAfterS) roll_calls_unheard_ = 0;
+  last_roll_call_s_ = now_s;
   if (roll_calls_unheard_++ == 0) first_unheard_s_ = now_s;
   if (roll_calls_unheard_ < kDeafRollCalls || now_s - first_unheard_s_ < deaf_after_s_) return;
   // Its relay writer lives (no lapse), yet nothing of the last steps came down: this agent's

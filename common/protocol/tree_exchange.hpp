@@ -235,6 +235,7 @@ class TreeExchange {
   double parent_heard_s_ = -1.0;
   int roll_calls_unheard_ = 0;
   double first_unheard_s_ = 0.0;  // when the first of those came
+  double last_roll_call_s_ = 0.0;  // when the newest counted came
   StepIndex parent_checked_step_ = 0;  // the newest roll call counted
   double deaf_after_s_ = kDeafAfterS;
   long links_down_remade_ = 0;

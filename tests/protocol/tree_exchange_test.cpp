@@ -901,5 +901,10 @@ TEST_CASE("A child that hears nothing from a live parent makes its link down ane
   for (int i = 0; i < 10; ++i) child.OnRollCall(k++, all, t + 6.0 + 0.001 * i);
   CHECK(remakes().empty());
   child.OnBatch(down(2, k - 1), t + 6.05);
+  // The same with one roll call unheard just before the silence (the last step before a
+  // partition): the burst after it is not a second of roll calls without a batch.
+  child.OnRollCall(k++, all, t + 6.1);
+  for (int i = 0; i < 10; ++i) child.OnRollCall(k++, all, t + 9.0 + 0.001 * i);
+  CHECK(remakes().empty());
   CHECK(child.links_down_remade() == 3);
 }
