@@ -332,10 +332,13 @@ void TargetNode::Execute(std::vector<protocol::TargetAction> actions) {
 }
 
 bool TargetNode::LeaveQuietly() {
-  // The end of the run, or giving up on it: every process of the run may leave at about the
-  // same time (dds::Node::Abandon). A stopped process, or one that never took part (another
-  // process has its place), leaves while the run goes on, and says goodbye.
-  if (stop_requested_ || !protocol_.finished()) return false;
+  // The end of the run: every process of the run leaves at about the same time
+  // (dds::Node::Abandon). A process that gives up, is stopped, or never took part (another
+  // process has its place) leaves while others on the domain go on, and says goodbye
+  // (docs/FASTDDS_NOTES.md, "Leaving while the run goes on").
+  if (stop_requested_ || !protocol_.finished() || exit_code_.value_or(protocol::kExitOk) != protocol::kExitOk) {
+    return false;
+  }
   node_.Abandon();
   return true;
 }

@@ -730,7 +730,9 @@ def test_stray_target(work, domain, monkeypatch):
     thread of Fast DDS held the lock of its shared-memory port: every process of the run
     then waited 1 s on that lock for each message to it, for 5 s, the target went on without
     the agents' states, and the run left the simulation (docs/FASTDDS_NOTES.md, "Leaving
-    while the run goes on"). Fast DDS's warnings name that wait."""
+    while the run goes on"). Fast DDS's warnings name that wait. The stray target hears this
+    run's discovery and liveliness traffic until it gives up, and must leave the same way:
+    once in CI an agent waited on that lock after the stray had left without a goodbye."""
     monkeypatch.setenv("DEIF_DDS_LOG", "warning")
     lau = launcher.Launcher(SLOW_CIRCLE, os.path.join(work, "run"), agents=4, steps=3000,
                             domain=domain, progress=False)
@@ -755,9 +757,57 @@ def test_stray_target(work, domain, monkeypatch):
     assert res.ok, res.why_not_ok()
     for name in sorted(os.listdir(os.path.join(res.out_dir, "logs"))):
         with open(os.path.join(res.out_dir, "logs", name)) as f:
-            assert "Interprocess mutex timeout" not in f.read(), name
+            assert "Interprocess mutex timeout" not in f.read(), (
+                name, "second target: " + second.stderr[-800:], "stray target: " + stray_err[-800:])
     worst, _ = largest_difference(res.out_dir, oracle(res.out_dir, work), range(1, 5))
     assert worst == 0.0
+
+
+def shm_ports_of_domain(domain):
+    """The shared-memory port files of a DDS domain's participants (RTPS port mapping: 7400 +
+    250 x domain, then 10 + 2 x participant id and one more)."""
+    base = 7400 + 250 * domain
+    found = []
+    for path in glob.glob("/dev/shm/fastrtps_port*"):
+        m = re.fullmatch(r"fastrtps_port(\d+)(_el)?", os.path.basename(path))
+        if m and base <= int(m.group(1)) < base + 250:
+            found.append(os.path.basename(path))
+    return sorted(found)
+
+
+def test_giving_up_says_goodbye(work, domain):
+    """A target that finds no agent and an agent that finds no target give up (exit 1) while
+    the other still runs on the domain: each deletes its participant before it ends, as a
+    process leaving while others go on must (docs/FASTDDS_NOTES.md, "Leaving while the run
+    goes on"). A participant left without a goodbye keeps its shared-memory ports, where a
+    thread that died holding their lock would stall every process writing to them; a deleted
+    one removes them."""
+    assert shm_ports_of_domain(domain) == [], "another process uses this domain"
+    config = os.path.join(paths.ROOT, "configs", "default.yaml")
+    common = ["--config", config, "--domain", str(domain), "--set", "network.transport=shm"]
+    target = subprocess.Popen([paths.executable("deif_target"), *common, "--run", "nobody_here",
+                               "--set", "network.start_timeout_s=2", "--out", os.path.join(work, "target")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    agent = subprocess.Popen([paths.executable("deif_agent"), *common, "--run", "no_target", "--id", "1",
+                              "--set", "network.start_timeout_s=3", "--out", os.path.join(work, "agent")],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        target_err = target.communicate(timeout=60)[1]
+        target_left = shm_ports_of_domain(domain)  # the agent is still there
+        agent_err = agent.communicate(timeout=60)[1]
+    finally:
+        for p in (target, agent):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    assert target.returncode == 1 and "no agent appeared" in target_err, target_err[-800:]
+    assert agent.returncode == 1 and "no range from the target" in agent_err, agent_err[-800:]
+    assert "not deleted" not in target_err + agent_err and "crashed while deleting" not in target_err + agent_err
+    left = shm_ports_of_domain(domain)
+    assert left == [], f"ports left behind: {left}"
+    # While the agent still ran, the target's listeners were gone: only the agent's two ports
+    # had their listener's lock file (_el); the agent still held the target's port open.
+    assert len([n for n in target_left if n.endswith("_el")]) == 2, target_left
 
 
 def test_run_isolation(work, domain):
