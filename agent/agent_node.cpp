@@ -488,6 +488,10 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
           remake->parent, remake->silent_s, protocol::TreeExchange::kDeafRollCalls);
       node_.RemakeReader(dds::Topic::kRelayDown);
       parent_writers_.clear();  // the parent's next batch names its writer again
+    } else if (const auto* grown = std::get_if<act::GraceGrown>(&action)) {
+      context_.log->warn("tree exchange: {}",
+                         protocol::GraceGrownLine("relay parent agent " + std::to_string(grown->parent),
+                                                  grown->factor, grown->grace_s));
     } else if (const auto* reject = std::get_if<act::Reject>(&action)) {
       protocol_.OnRelayRejected(reject->reason, reject->count);
     }

@@ -83,6 +83,14 @@ struct RemakeLinkDown {
   AgentId parent = 0;
   double silent_s = 0.0;
 };
+// A lapse of the parent's relay writer was undone (it came back, or was still a member when
+// its hold ended): lapses of a parent are now held for `factor` x the grace, `grace_s`
+// (docs/PROTOCOL.md, "Losses that are undone").
+struct GraceGrown {
+  AgentId parent = 0;
+  double factor = 1.0;
+  double grace_s = 0.0;
+};
 struct Reject {  // an invalid batch or item, counted like any rejected message
   std::string reason;
   std::int64_t count = 1;
@@ -90,7 +98,7 @@ struct Reject {  // an invalid batch or item, counted like any rejected message
 }  // namespace tree_action
 
 using TreeAction = std::variant<tree_action::Send, tree_action::Deliver, tree_action::Reparent,
-                                tree_action::Reject, tree_action::RemakeLinkDown>;
+                                tree_action::Reject, tree_action::RemakeLinkDown, tree_action::GraceGrown>;
 
 class TreeExchange {
  public:
@@ -176,6 +184,8 @@ class TreeExchange {
   void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
   void Place();  // place_, child_subtrees_ and wait_s_ from sorted_
   void CheckSilence(double now_s);
+  // A GraceGrown action if the parent lapses' factor grew from `before`.
+  void NoteGraceGrown(AgentId parent, double before);
   // Lock-step: the children whose batch of the oldest step not yet sent on has not come.
   std::vector<AgentId> ChildrenMissing() const;
   void LeaveSilent(AgentId parent, double now_s);  // if it is still the parent

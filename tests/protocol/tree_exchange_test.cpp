@@ -608,11 +608,14 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   child.SetMembers(std::set<AgentId>{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13}, 0.0);
   child.TakeActions();
   REQUIRE(child.place().parent == AgentId{2});
-  const auto moves = [&child] {
+  std::vector<protocol::tree_action::GraceGrown> grown;
+  const auto moves = [&child, &grown] {
     std::vector<std::pair<AgentId, AgentId>> out;  // (new parent or 0, silent parent or 0)
     for (const auto& a : child.TakeActions()) {
       if (const auto* r = std::get_if<protocol::tree_action::Reparent>(&a)) {
         out.emplace_back(r->parent.value_or(0), r->silent.value_or(0));
+      } else if (const auto* g = std::get_if<protocol::tree_action::GraceGrown>(&a)) {
+        grown.push_back(*g);
       }
     }
     return out;
@@ -639,6 +642,11 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   // That parent lived: the network lost its renewals, so its lapses are held twice as long
   // from now on (docs/PROTOCOL.md, "Losses that are undone"), and the same silence moves nobody.
   CHECK(child.parent_losses_undone() == 1);
+  // Said once, for the agent to log: parent 2, twice the grace.
+  REQUIRE(grown.size() == 1);
+  CHECK(grown[0].parent == AgentId{2});
+  CHECK(grown[0].factor == 2.0);
+  CHECK(grown[0].grace_s == Approx(2.0 * grace));
   child.OnParentLiveliness(2, false, 6.0);
   child.OnTimer(6.0 + 1.5 * grace);
   CHECK(moves().empty());
@@ -649,6 +657,7 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   child.OnParentLiveliness(2, false, 7.0);
   child.OnTimer(7.0 + 2.0 * grace);
   CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{1, 2}});
+  CHECK(grown.size() == 1);  // nothing undone since
 }
 
 TEST_CASE("After this agent was away, its parent's lapse counts only once it outlasts the hold",
