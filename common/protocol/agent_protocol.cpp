@@ -417,6 +417,7 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
     peer.lost_at_s = now_s;
     peer.lost_once = true;
     peer.lost_in_step = NewestKnownStep();
+    AskMergeIfWrittenWithout(bound->second);
   }
   if (quiet) return;
   const std::string members = std::to_string(Members().size());
@@ -697,6 +698,20 @@ bool AgentProtocol::IsComplete(const Record& r) const {
     if (r.held.count(id) == 0) return false;
   }
   return true;
+}
+
+void AgentProtocol::AskMergeIfWrittenWithout(AgentId lost) {
+  // A step already written without the contribution of a member lost only now (in real time
+  // a step is written at its deadline, before a peer killed in it is seen lost): what that
+  // member sent may have reached some peers only, as in the rule at the write (FinishStep).
+  for (const auto& [step, r] : records_) {
+    if (!r.written || !r.roll_call || r.held.count(lost) > 0) continue;
+    if (std::find(r.roll_call->begin(), r.roll_call->end(), lost) == r.roll_call->end()) continue;
+    merge_pending_ = true;
+    Log(LogLevel::kWarn, "step " + std::to_string(step) + " was written without the contribution of agent " +
+                             std::to_string(lost) + ", lost since; the next contribution asks the network for a merge");
+    return;
+  }
 }
 
 bool AgentProtocol::MissesALostMember(const Record& r) const {

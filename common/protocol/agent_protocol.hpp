@@ -279,6 +279,9 @@ class AgentProtocol {
   bool IsComplete(const Record& r) const;
   // The newest step this agent knows the target began (opened, or a range waiting).
   StepIndex NewestKnownStep() const;
+  // Asks the network for a merge if a written step in the history lacks `lost`'s contribution
+  // though its roll call named it (docs/PROTOCOL.md, "Beyond the history: one merge").
+  void AskMergeIfWrittenWithout(AgentId lost);
   // Whether a roll-call member whose contribution `r` lacks has been seen lost.
   bool MissesALostMember(const Record& r) const;
   void ApplyRange(Record& r, const RangeMsg& msg, bool unusable);

@@ -432,6 +432,42 @@ TEST_CASE("A member that dies after its contribution reached only some peers lea
   }
 }
 
+TEST_CASE("In real time, a member that dies after its contribution reached only some peers, and "
+          "is seen lost after they wrote the step, leads to one merge long before the step "
+          "leaves the history",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgentsRealTime);
+  net.Start();
+  net.Pump();
+  REQUIRE(net.agents.at(1)->last_written_step() == 1);
+  // GIVEN agent 3's contribution of step 2 reaches agent 2 but not agent 1, which writes
+  // step 2 at its deadline without it, and then agent 3 dies (seen lost later, by its
+  // liveliness)
+  net.AdvanceTime(0.1);
+  net.Pump([](const Envelope& e) { return IsContribution(e, 3, 1, 2); });
+  net.AdvanceTime(0.06);
+  REQUIRE(net.agents.at(1)->last_written_step() == 2);
+  net.Kill(3);
+  net.held.clear();  // died with it
+  // WHEN the run goes on (8 steps of history; 20 steps)
+  net.RunUntil(20);
+  // THEN agents 1 and 2 wrote step 2 with different sets; once agent 3 was lost, agent 1's
+  // next contribution asked for a merge, both merged once, and they are identical from
+  // step 5 on (waiting for step 2 to leave the history kept them apart until step 11)
+  const auto& rows1 = net.rows.at(1);
+  const auto& rows2 = net.rows.at(2);
+  REQUIRE(rows1.size() == 20);
+  REQUIRE(rows2.size() == 20);
+  CHECK(rows1[1].fused == 2);
+  CHECK(rows2[1].fused == 3);
+  CHECK(net.agents.at(1)->counters().merges == 1);
+  CHECK(net.agents.at(2)->counters().merges == 1);
+  for (std::size_t i = 4; i < 20; ++i) {
+    INFO("step " << i + 1);
+    CHECK(rows1[i].estimate_m == rows2[i].estimate_m);
+  }
+}
+
 TEST_CASE("A lost member is not waited for in lock-step", "[protocol]") {
   ScriptedNetwork net(kThreeAgents);
   net.Start();
