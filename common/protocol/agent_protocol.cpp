@@ -417,7 +417,7 @@ void AgentProtocol::ApplyLiveliness(const SenderKey& writer, bool alive, double 
     peer.lost_at_s = now_s;
     peer.lost_once = true;
     peer.lost_in_step = NewestKnownStep();
-    AskMergeIfWrittenWithout(bound->second);
+    if (RealTime()) AskMergeIfWrittenWithout(bound->second);
   }
   if (quiet) return;
   const std::string members = std::to_string(Members().size());
@@ -704,6 +704,10 @@ void AgentProtocol::AskMergeIfWrittenWithout(AgentId lost) {
   // A step already written without the contribution of a member lost only now (in real time
   // a step is written at its deadline, before a peer killed in it is seen lost): what that
   // member sent may have reached some peers only, as in the rule at the write (FinishStep).
+  // Real time only: in lock-step such a step was written at the step timeout, and on a lossy
+  // link a live peer taken for lost for a moment then asked for merges that a late
+  // contribution would have made needless (docs/PROTOCOL.md, "Beyond the history: one
+  // merge").
   for (const auto& [step, r] : records_) {
     if (!r.written || !r.roll_call || r.held.count(lost) > 0) continue;
     if (std::find(r.roll_call->begin(), r.roll_call->end(), lost) == r.roll_call->end()) continue;
