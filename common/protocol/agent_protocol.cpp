@@ -257,11 +257,10 @@ void AgentProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, doub
   const bool target = target_writer_ && writer == *target_writer_;
   const double grace_s = target || options_.peer_grace_s < 0.0 ? config_.network.liveliness_grace_s
                                                               : options_.peer_grace_s;
-  const double factor = lapses_.grace_factor();
   if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s, grace_s)) {
     ApplyLiveliness(writer, *change, now_s);
   }
-  if (lapses_.grace_factor() > factor) {
+  if (lapses_.TakeGrown()) {
     const auto bound = writer_ids_.find(writer);
     const std::string who = target ? "the target"
                             : bound != writer_ids_.end() ? "agent " + std::to_string(bound->second)

@@ -46,6 +46,7 @@ template <typename Key>
 void BasicLapseFilter<Key>::NoteUndone(double now_s) {
   Relax(now_s);
   ++undone_;
+  grown_ = grown_ || factor_ < kMaxFactor;
   factor_ = std::min(kMaxFactor, factor_ * 2.0);
   factor_since_s_ = now_s;  // quiet counts from the last one
 }

@@ -8,6 +8,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "common/protocol/messages.hpp"
@@ -62,6 +63,8 @@ class BasicLapseFilter {
   // How many times its grace a writer's lapse is now held (1, 2, 4 or 8; the cap
   // max_grace_s can make the grace itself shorter).
   double grace_factor() const { return factor_; }
+  // Whether the factor grew since the last call (for the caller's one log line per doubling).
+  bool TakeGrown() { return std::exchange(grown_, false); }
   long losses_undone() const { return undone_; }
   // A loss found undone by other means (the writer's owner was heard of meanwhile): as a
   // return within the window.
@@ -87,6 +90,7 @@ class BasicLapseFilter {
   std::map<Key, Lost> lost_;  // writers whose loss came due, while a return would undo it
   long ignored_ = 0;
   double factor_ = 1.0;
+  bool grown_ = false;
   double factor_since_s_ = 0.0;  // when the factor last changed
   long undone_ = 0;
 };

@@ -72,11 +72,10 @@ void TargetProtocol::OnState(const StateMsg& msg, const SenderKey& from, double 
 void TargetProtocol::OnWriterLiveliness(const SenderKey& writer, bool alive, double now_s) {
   const double grace_s = started() || options_.start_grace_s < 0.0 ? config_.network.liveliness_grace_s
                                                                    : options_.start_grace_s;
-  const double factor = lapses_.grace_factor();
   if (const std::optional<bool> change = lapses_.Report(writer, alive, now_s, grace_s)) {
     ApplyLiveliness(writer, *change, now_s);
   }
-  if (lapses_.grace_factor() > factor) {
+  if (lapses_.TakeGrown()) {
     const auto bound = writer_ids_.find(writer);
     const std::string who =
         bound != writer_ids_.end() ? "agent " + std::to_string(bound->second) : "an agent's writer";

@@ -114,15 +114,14 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
 
 void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
   if (!alive && place_.parent != id) return;  // only its parent's lapses (a return ends any)
-  const double factor = parent_lapses_.grace_factor();
   const std::optional<bool> change = parent_lapses_.Report(id, alive, now_s);
-  NoteGraceGrown(id, factor);
+  NoteGraceGrown(id);
   if (change && !*change) LeaveSilent(id, now_s);  // no grace
   CheckSilence(now_s);
 }
 
-void TreeExchange::NoteGraceGrown(AgentId parent, double before) {
-  if (parent_lapses_.grace_factor() <= before) return;
+void TreeExchange::NoteGraceGrown(AgentId parent) {
+  if (!parent_lapses_.TakeGrown()) return;
   actions_.push_back(tree_action::GraceGrown{parent, parent_lapses_.grace_factor(),
                                              parent_lapses_.GraceNow(config_.network.liveliness_grace_s)});
 }
@@ -151,9 +150,8 @@ void TreeExchange::CheckSilence(double now_s) {
       // of its peers, docs/PROTOCOL.md, "Losses that are undone"). (A parent the members lost
       // left silent_ then, in SetMembers.)
       if (given_.count(it->first) > 0) {
-        const double factor = parent_lapses_.grace_factor();
         parent_lapses_.NoteUndone(now_s);
-        NoteGraceGrown(it->first, factor);
+        NoteGraceGrown(it->first);
       }
       it = silent_.erase(it);
       back = true;

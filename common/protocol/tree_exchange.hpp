@@ -184,8 +184,8 @@ class TreeExchange {
   void Rebuild(double now_s, std::optional<AgentId> silent = std::nullopt);
   void Place();  // place_, child_subtrees_ and wait_s_ from sorted_
   void CheckSilence(double now_s);
-  // A GraceGrown action if the parent lapses' factor grew from `before`.
-  void NoteGraceGrown(AgentId parent, double before);
+  // A GraceGrown action if the parent lapses' factor grew since the last one.
+  void NoteGraceGrown(AgentId parent);
   // Lock-step: the children whose batch of the oldest step not yet sent on has not come.
   std::vector<AgentId> ChildrenMissing() const;
   void LeaveSilent(AgentId parent, double now_s);  // if it is still the parent
