@@ -46,7 +46,8 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       timings_(dds::EffectiveTimings(context.config)),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
       protocol_(context.config, id, ProtocolOptions(context, id, instance_token_, timings_)),
-      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
+      silence_watch_(dds::ForgottenAfterS(timings_)) {
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
@@ -199,7 +200,18 @@ int AgentNode::Run() {
         tree_->SetMembers(TreeMembers(), now_s);
       }
     }
-    for (const dds::Event& event : events) Dispatch(event, now_s);
+    for (const dds::Event& event : events) {
+      if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
+        if (change->alive) {
+          alive_writers_.insert(change->writer);
+        } else {
+          alive_writers_.erase(change->writer);
+        }
+      } else {
+        silence_watch_.Heard(now_s);
+      }
+      Dispatch(event, now_s);
+    }
     // More often while the target's roll call leaves out a member (the target may have seen
     // its process end already), or a lock-step step waits long for a member (it may have
     // been killed in the step, and the target waits for this agent).
@@ -224,7 +236,7 @@ int AgentNode::Run() {
       restart_in_place_ = true;
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
     }
-    if (DiscoveryStoppedShort(now_s)) {
+    if (DiscoveryStoppedShort(now_s) || ForgottenByTheServer(now_s)) {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
     }
@@ -331,6 +343,26 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
     return true;
   }
   discovery_watch_.GiveUp();  // said once; it goes on as it is
+  return false;
+}
+
+bool AgentNode::ForgottenByTheServer(double now_s) {
+  // Nothing came (no range, no contribution, no batch) for longer than a participant lease,
+  // no writer this agent reads is alive, and the target's participant is still listed up: the
+  // server dropped this client and told everyone else (docs/FASTDDS_NOTES.md, "Forgotten by
+  // the server"). A target that died leaves the peers' writers alive. With simple discovery
+  // every process times out each lease itself, and the two sides meet again.
+  if (config_.network.discovery != DiscoveryKind::kServer || protocol_.last_written_step() < 1) return false;
+  if (!silence_watch_.Forgotten(now_s, alive_writers_.empty() && node_.TargetUp())) return false;
+  const std::string why = fmt::format(
+      "heard nothing for {:.1f} s while the target's participant is still listed up: the Discovery Server took "
+      "this agent for gone (docs/FASTDDS_NOTES.md, \"Forgotten by the server\")",
+      silence_watch_.silent_s(now_s));
+  if (dds::MayRestartInPlace(*context_.log, why, "after step " + std::to_string(protocol_.last_written_step()))) {
+    restart_in_place_ = true;
+    return true;
+  }
+  silence_watch_.GiveUp();  // said once; it goes on as it is
   return false;
 }
 

@@ -64,6 +64,11 @@ class AgentNode : public dds::Application {
   // (protocol::DiscoveryWatch) and it is to start again in place with a new participant. If
   // it already did so dds::kMaxRestartsInPlace times, it says so once and goes on.
   bool DiscoveryStoppedShort(double now_s);
+  // With a Discovery Server: whether this agent heard nothing for longer than a participant
+  // lease, with no remote writer alive, while the target's participant is still listed up
+  // (protocol::SilenceWatch), and is
+  // to start again in place with a new participant (as DiscoveryStoppedShort).
+  bool ForgottenByTheServer(double now_s);
   // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   void ReportMatches(double now_s);
   // Whether the relay endpoints of this agent's place in the tree matched their other ends:
@@ -110,6 +115,8 @@ class AgentNode : public dds::Application {
   bool crashed_for_test_ = false;  // CrashForTest
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
+  protocol::SilenceWatch silence_watch_;  // network.discovery: server
+  std::set<protocol::SenderKey> alive_writers_;  // remote writers whose liveliness is alive
 };
 
 }  // namespace deif::agent

@@ -186,6 +186,10 @@ double AssertPeriodOf(const TopicQos& spec, const Config& config) {
 
 }  // namespace
 
+double ForgottenAfterS(const Timings& timings) {
+  return timings.participant_lease_s + 2.0 * timings.participant_announcement_s;
+}
+
 double DiscoveryPatienceS(const Config& config, int restarts_in_place) {
   const double base = std::max(5.0, 4.0 * EffectiveTimings(config).participant_announcement_s);
   return base * static_cast<double>(1 << std::clamp(restarts_in_place, 0, 8));

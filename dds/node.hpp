@@ -250,6 +250,13 @@ Timings EffectiveTimings(const Config& config);
 // (the target of a run whose agents were started first) costs no more than a few.
 double DiscoveryPatienceS(const Config& config, int restarts_in_place);
 
+// How long a Discovery Server client may hear nothing while the peers it should hear are still
+// listed up before it counts as forgotten by the server (protocol::SilenceWatch;
+// docs/FASTDDS_NOTES.md, "Forgotten by the server"): a participant lease and two
+// announcements. A peer that really went silent (a frozen or killed target) is dropped by the
+// server within its lease and the clients are told so, and then it is no longer listed up.
+double ForgottenAfterS(const Timings& timings);
+
 // A steady_clock time point as seconds (the protocol's clock).
 inline double ToSeconds(Clock::time_point t) {
   return std::chrono::duration<double>(t.time_since_epoch()).count();

@@ -78,7 +78,8 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
       on_file_(ReadRowsOnFile(context, options)),
       node_(context.config, "target", context.run_name),
       protocol_(context.config, ProtocolOptions(context, options, on_file_)),
-      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
+      silence_watch_(dds::ForgottenAfterS(dds::EffectiveTimings(context.config))) {
   node_.AddWriter(dds::Topic::kTruth);
   node_.AddReader({dds::Topic::kAgentState, {}});
   // A reader of ranges for id 0, which nobody writes: before this target has a range writer
@@ -179,7 +180,18 @@ int TargetNode::Run() {
         node_.Wait(dds::WakeBy(protocol_.NextDeadline(), protocol_.started() ? kEndedCheckS : kMaxWaitS));
     const double now_s = dds::ToSeconds(dds::Clock::now());
     if (protocol_.started()) delivery_.Record(events);  // from the first step on (as the agents)
-    for (const dds::Event& event : events) Dispatch(event, now_s);
+    for (const dds::Event& event : events) {
+      if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
+        if (change->alive) {
+          alive_writers_.insert(change->writer);
+        } else {
+          alive_writers_.erase(change->writer);
+        }
+      } else {
+        silence_watch_.Heard(now_s);
+      }
+      Dispatch(event, now_s);
+    }
     dds::LogReadersMadeAnew(node_, *context_.log);
     std::deque<StepIndex> go;
     {
@@ -191,7 +203,7 @@ int TargetNode::Run() {
     if (!protocol_.started()) protocol_.OnRangeReaders(node_.MatchedReaderKeys(dds::Topic::kRange));
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
-    if (!protocol_.started() && DiscoveryStoppedShort(now_s)) {
+    if ((!protocol_.started() && DiscoveryStoppedShort(now_s)) || ForgottenByTheServer(now_s)) {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
     }
@@ -270,6 +282,25 @@ bool TargetNode::DiscoveryStoppedShort(double now_s) {
     return true;
   }
   discovery_watch_.GiveUp();
+  return false;
+}
+
+bool TargetNode::ForgottenByTheServer(double now_s) {
+  // No agent's state came for longer than a participant lease, no agent's state writer is
+  // alive, and agents' participants are still listed up: the server dropped the target and
+  // told the agents so (docs/FASTDDS_NOTES.md, "Forgotten by the server"). The new process
+  // resumes after the agents' newest step.
+  if (config_.network.discovery != DiscoveryKind::kServer || !protocol_.started()) return false;
+  if (!silence_watch_.Forgotten(now_s, alive_writers_.empty() && !node_.AgentsUp().empty())) return false;
+  const std::string why = fmt::format(
+      "heard no agent for {:.1f} s while agents' participants are still listed up: the Discovery Server took "
+      "the target for gone (docs/FASTDDS_NOTES.md, \"Forgotten by the server\")",
+      silence_watch_.silent_s(now_s));
+  if (dds::MayRestartInPlace(*context_.log, why, "at step " + std::to_string(protocol_.current_step()))) {
+    restart_in_place_ = true;
+    return true;
+  }
+  silence_watch_.GiveUp();  // said once; it goes on as it is
   return false;
 }
 

@@ -18,4 +18,11 @@ bool DiscoveryWatch::Stalled(int expected, int matched, std::uint64_t heard, dou
   return matched < expected && now_s - since_s_ >= patience_s_;
 }
 
+bool SilenceWatch::Forgotten(double now_s, bool listed) {
+  if (given_up_ || heard_s_ < 0.0 || said_for_s_ == heard_s_ || !listed) return false;
+  if (now_s - heard_s_ <= patience_s_) return false;
+  said_for_s_ = heard_s_;
+  return true;
+}
+
 }  // namespace deif::protocol

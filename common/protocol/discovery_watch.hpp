@@ -41,4 +41,32 @@ class DiscoveryWatch {
   static constexpr double kCheckPeriodS = 0.5;
 };
 
+// A Discovery Server client the server took for gone while this client still hears the server
+// (docs/FASTDDS_NOTES.md, "Forgotten by the server"): the server told every other process to
+// drop it, so nobody sends it anything, while its own view still lists them all (a client
+// leaves the other clients' leases to the server). Fast DDS 2.9.1 did not discover it again
+// for as long as the runs lasted; a new participant is discovered afresh.
+class SilenceWatch {
+ public:
+  // patience_s: how long nothing may arrive while the peers are listed up.
+  explicit SilenceWatch(double patience_s) : patience_s_(patience_s) {}
+
+  // A sample came from the network at now_s.
+  void Heard(double now_s) { heard_s_ = now_s; }
+  // True when nothing came for more than patience_s since the last sample, and `listed`: the
+  // transport still lists up the processes this one should hear from (and the caller sees
+  // nothing else of them, such as a live writer). Never before the
+  // first sample, nor again before the next one, nor once GaveUp.
+  bool Forgotten(double now_s, bool listed);
+  void GiveUp() { given_up_ = true; }
+  double patience_s() const { return patience_s_; }
+  double silent_s(double now_s) const { return heard_s_ < 0.0 ? 0.0 : now_s - heard_s_; }
+
+ private:
+  double patience_s_;
+  double heard_s_ = -1.0;
+  double said_for_s_ = -1.0;  // the sample whose silence Forgotten already reported
+  bool given_up_ = false;
+};
+
 }  // namespace deif::protocol

@@ -59,3 +59,29 @@ TEST_CASE("Matching complete, or beyond what is up, is never stopped short", "[d
   }
   CHECK_FALSE(watch.Stalled(0, 0, 0, 30.0));
 }
+
+// Forgotten by the server (docs/FASTDDS_NOTES.md).
+using deif::protocol::SilenceWatch;
+
+TEST_CASE("Silence counts as forgotten after the patience, only while the peers are listed up, "
+          "and once per silence",
+          "[discovery]") {
+  SilenceWatch watch(6.0);
+  CHECK_FALSE(watch.Forgotten(100.0, true));  // nothing heard yet: the run has not begun
+  watch.Heard(10.0);
+  CHECK_FALSE(watch.Forgotten(16.0, true));  // not more than the patience
+  CHECK_FALSE(watch.Forgotten(17.0, false));  // the peers are gone: told so, not forgotten
+  CHECK(watch.Forgotten(17.0, true));
+  CHECK_FALSE(watch.Forgotten(30.0, true));  // said once for this silence
+  watch.Heard(31.0);
+  CHECK_FALSE(watch.Forgotten(36.5, true));
+  CHECK(watch.silent_s(37.5) == Approx(6.5));
+  CHECK(watch.Forgotten(37.5, true));
+}
+
+TEST_CASE("A watch that gave up says nothing more", "[discovery]") {
+  SilenceWatch watch(6.0);
+  watch.Heard(0.0);
+  watch.GiveUp();
+  CHECK_FALSE(watch.Forgotten(100.0, true));
+}
