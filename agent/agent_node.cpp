@@ -48,6 +48,9 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       protocol_(context.config, id, ProtocolOptions(context, id, instance_token_, timings_)),
       discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
       silence_watch_(dds::ForgottenAfterS(timings_)) {
+  if (context_.options.append && !context_.options.out_dir.empty()) {
+    earlier_counters_ = dds::EarlierCounters(CountersPath(), *context_.log);
+  }
   node_.AddWriter(dds::Topic::kContribution);
   node_.AddWriter(dds::Topic::kAgentState);
   node_.AddReader({dds::Topic::kRange, id_});        // only this agent's ranges
@@ -406,6 +409,11 @@ bool AgentNode::TreeLinksMatched() const {
          node_.MatchedReaders(dds::Topic::kRelayDown) >= children;
 }
 
+std::string AgentNode::CountersPath() const {
+  return (std::filesystem::path(context_.options.out_dir) / ("agent_" + std::to_string(id_) + ".counters.json"))
+      .string();
+}
+
 void AgentNode::WriteCounters() const {
   if (context_.options.out_dir.empty()) return;
   const auto& c = protocol_.counters();
@@ -418,9 +426,7 @@ void AgentNode::WriteCounters() const {
                                    {"links_down_remade", tree_ ? tree_->links_down_remade() : 0},
                                    {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", c.by_reason}, {"delivery_ms", delivery_.ToJson()}};
-  std::ofstream((std::filesystem::path(context_.options.out_dir) /
-                 ("agent_" + std::to_string(id_) + ".counters.json")).string())
-      << counters.dump(2) << "\n";
+  std::ofstream(CountersPath()) << dds::AddEarlierCounters(earlier_counters_, counters).dump(2) << "\n";
 }
 
 bool AgentNode::Authorised(AgentId claimed, const protocol::SenderKey& writer) const {

@@ -18,6 +18,7 @@
 #include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/tree_exchange.hpp"
 #include "dds/application.hpp"
+#include "dds/counters.hpp"
 #include "dds/delivery.hpp"
 #include "dds/node.hpp"
 
@@ -89,6 +90,10 @@ class AgentNode : public dds::Application {
   // <out>/agent_<id>.counters.json: what this process rejected and dropped, by reason, and
   // how long samples took to reach it.
   void WriteCounters() const;
+  std::string CountersPath() const;
+  // What the earlier process wrote there, for a process started again (--append): its counts
+  // go on from them (dds::AddEarlierCounters).
+  nlohmann::json earlier_counters_;
 
   dds::ProcessContext& context_;
   const Config& config_;

@@ -80,6 +80,9 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
       protocol_(context.config, ProtocolOptions(context, options, on_file_)),
       discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
       silence_watch_(dds::ForgottenAfterS(dds::EffectiveTimings(context.config))) {
+  if (context_.options.append && !context_.options.out_dir.empty()) {
+    earlier_counters_ = dds::EarlierCounters(CountersPath(), *context_.log);
+  }
   node_.AddWriter(dds::Topic::kTruth);
   node_.AddReader({dds::Topic::kAgentState, {}});
   // A reader of ranges for id 0, which nobody writes: before this target has a range writer
@@ -248,6 +251,10 @@ dds::RestartOptions TargetNode::RestartOptionsOf() const {
   return {{"--start-step", std::to_string(floor)}};
 }
 
+std::string TargetNode::CountersPath() const {
+  return (std::filesystem::path(context_.options.out_dir) / "target.counters.json").string();
+}
+
 void TargetNode::WriteCounters() const {
   if (context_.options.out_dir.empty()) return;
   std::int64_t rejected = 0;
@@ -258,8 +265,7 @@ void TargetNode::WriteCounters() const {
                                    {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", protocol_.rejected_by_reason()},
                                    {"delivery_ms", delivery_.ToJson()}};
-  std::ofstream((std::filesystem::path(context_.options.out_dir) / "target.counters.json").string())
-      << counters.dump(2) << "\n";
+  std::ofstream(CountersPath()) << dds::AddEarlierCounters(earlier_counters_, counters).dump(2) << "\n";
 }
 
 bool TargetNode::DiscoveryStoppedShort(double now_s) {

@@ -17,6 +17,7 @@
 #include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/target_protocol.hpp"
 #include "dds/application.hpp"
+#include "dds/counters.hpp"
 #include "dds/delivery.hpp"
 #include "dds/node.hpp"
 
@@ -52,6 +53,10 @@ class TargetNode : public dds::Application {
  private:
   bool AnotherTargetInThisRun();
   void WriteCounters() const;
+  std::string CountersPath() const;
+  // What the earlier process wrote there, for a process started again (--append): its counts
+  // go on from them (dds::AddEarlierCounters).
+  nlohmann::json earlier_counters_;
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
   bool CrashForTest(StepIndex step);  // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
   // While it waits for the agents: whether its range writer has stopped short of agents that

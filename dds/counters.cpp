@@ -1,0 +1,39 @@
+#include "dds/counters.hpp"
+
+#include <filesystem>
+#include <fstream>
+
+namespace deif::dds {
+
+nlohmann::json EarlierCounters(const std::string& path, spdlog::logger& log) {
+  if (!std::filesystem::exists(path)) return nlohmann::json::object();
+  std::ifstream in(path);
+  nlohmann::json earlier = nlohmann::json::parse(in, nullptr, /*allow_exceptions=*/false);
+  if (!earlier.is_object()) {
+    log.warn("{}: not a JSON object; the counts of the earlier process are lost", path);
+    return nlohmann::json::object();
+  }
+  return earlier;
+}
+
+nlohmann::json AddEarlierCounters(const nlohmann::json& earlier, nlohmann::json now) {
+  if (!earlier.is_object() || !now.is_object()) return now;
+  for (auto& [key, value] : now.items()) {
+    const auto before = earlier.find(key);
+    if (before == earlier.end()) continue;
+    if (value.is_number_integer() && before->is_number_integer()) {
+      value = value.get<std::int64_t>() + before->get<std::int64_t>();
+    } else if (key == "by_reason" && value.is_object() && before->is_object()) {
+      for (const auto& [reason, count] : before->items()) {
+        if (!count.is_number_integer()) continue;
+        const std::int64_t here = value.contains(reason) && value[reason].is_number_integer()
+                                      ? value[reason].get<std::int64_t>()
+                                      : 0;
+        value[reason] = here + count.get<std::int64_t>();
+      }
+    }
+  }
+  return now;
+}
+
+}  // namespace deif::dds
