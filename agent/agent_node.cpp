@@ -46,8 +46,7 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       timings_(dds::EffectiveTimings(context.config)),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
       protocol_(context.config, id, ProtocolOptions(context, id, instance_token_, timings_)),
-      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
-      silence_watch_(dds::ForgottenAfterS(timings_)) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
   if (context_.options.append && !context_.options.out_dir.empty()) {
     earlier_counters_ = dds::EarlierCounters(CountersPath(), *context_.log);
   }
@@ -350,17 +349,22 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
 }
 
 bool AgentNode::ForgottenByTheServer(double now_s) {
-  // Nothing came (no range, no contribution, no batch) for longer than a participant lease,
-  // no writer this agent reads is alive, and the target's participant is still listed up: the
-  // server dropped this client and told everyone else (docs/FASTDDS_NOTES.md, "Forgotten by
+  // Nothing came (no range, no contribution, no batch) since before the server was last found
+  // again, nor for a participant lease after that, no writer this agent reads is alive, and the
+  // target's participant is still listed up: the server dropped this client and told everyone
+  // else (docs/FASTDDS_NOTES.md, "Forgotten by
   // the server"). A target that died leaves the peers' writers alive. With simple discovery
   // every process times out each lease itself, and the two sides meet again.
   if (config_.network.discovery != DiscoveryKind::kServer || protocol_.last_written_step() < 1) return false;
-  if (!silence_watch_.Forgotten(now_s, alive_writers_.empty() && node_.TargetUp())) return false;
+  const std::optional<double> server_since = node_.DiscoveryServerSinceS();
+  const std::optional<double> listed_since =
+      alive_writers_.empty() && node_.TargetUp() ? server_since : std::nullopt;
+  if (!silence_watch_.Forgotten(now_s, dds::ForgottenAfterS(timings_), listed_since)) return false;
   const std::string why = fmt::format(
-      "heard nothing for {:.1f} s while the target's participant is still listed up: the Discovery Server took "
-      "this agent for gone (docs/FASTDDS_NOTES.md, \"Forgotten by the server\")",
-      silence_watch_.silent_s(now_s));
+      "heard nothing for {:.1f} s, {:.1f} s of it since the Discovery Server was found again, while the target's "
+      "participant is still listed up: the server took this agent for gone (docs/FASTDDS_NOTES.md, \"Forgotten by "
+      "the server\")",
+      silence_watch_.silent_s(now_s), now_s - *server_since);
   if (dds::MayRestartInPlace(*context_.log, why, "after step " + std::to_string(protocol_.last_written_step()))) {
     restart_in_place_ = true;
     return true;

@@ -432,6 +432,16 @@ std::int32_t FreshShmParticipantId(int domain_id) {
 // a dead process's (ParticipantQos).
 double ShmPortCheckS(const Config& config) { return std::max(1.0, config.network.participant_lease_s); }
 
+// The GUID prefix of the Discovery Server with id 0 (`fastdds discovery -i 0`).
+const eprosima::fastrtps::rtps::GuidPrefix_t& ServerPrefix() {
+  static const eprosima::fastrtps::rtps::GuidPrefix_t prefix = [] {
+    eprosima::fastrtps::rtps::RemoteServerAttributes server;
+    server.ReadguidPrefix("44.53.00.5f.45.50.52.4f.53.49.4d.41");
+    return server.guidPrefix;
+  }();
+  return prefix;
+}
+
 // What a participant announces as its user data: the partition of its run.
 std::string RunAnnouncement(const std::string& run_name) { return "deif." + run_name; }
 
@@ -457,7 +467,7 @@ fdds::DomainParticipantQos ParticipantQos(const Config& config, const std::strin
     const std::string& address = network.discovery_server;
     const std::size_t colon = address.rfind(':');
     eprosima::fastrtps::rtps::RemoteServerAttributes server;
-    server.ReadguidPrefix("44.53.00.5f.45.50.52.4f.53.49.4d.41");  // the server with id 0
+    server.guidPrefix = ServerPrefix();
     eprosima::fastrtps::rtps::Locator_t locator;
     eprosima::fastrtps::rtps::IPLocator::setIPv4(locator, address.substr(0, colon));
     locator.port = static_cast<std::uint32_t>(std::stoul(address.substr(colon + 1)));
@@ -557,9 +567,13 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
       peer.agent = of_run ? AgentIdOfName(name) : 0;
       peer.shm_ports = ShmUnicastPorts(info.info);
       last_discovery_ = Clock::now();
+      if (info.info.m_guid.guidPrefix == ServerPrefix()) {
+        server_since_s_ = ToSeconds(Clock::now());
+      }
     } else if (info.status == Info::REMOVED_PARTICIPANT ||
                info.status == Info::DROPPED_PARTICIPANT) {
       peers_[info.info.m_guid].gone = true;
+      if (info.info.m_guid.guidPrefix == ServerPrefix()) server_since_s_.reset();
     }
     int up = 0;
     for (const auto& [guid, peer] : peers_) up += peer.watched && !peer.gone ? 1 : 0;
@@ -638,6 +652,11 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
     }
     return ports;
   }
+  // Since when the Discovery Server's participant is listed up, this time (nullopt: it is not).
+  std::optional<double> ServerSinceS() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return server_since_s_;
+  }
   // Forgets the participants (a new local participant authenticates afresh).
   void ResetPeers() {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -697,6 +716,7 @@ class ParticipantListener final : public fdds::DomainParticipantListener {
   std::map<protocol::SenderKey, Binding> bindings_;
   std::map<Guid, Peer> peers_;
   Clock::time_point last_discovery_{};
+  std::optional<double> server_since_s_;
 };
 
 // A content filter on the key that reads the id straight from the serialized sample:
@@ -1546,6 +1566,8 @@ void Node::Abandon() {
 }
 
 bool Node::TargetUp() const { return impl_->participant_listener.WatchedUp(); }
+
+std::optional<double> Node::DiscoveryServerSinceS() const { return impl_->participant_listener.ServerSinceS(); }
 
 std::set<AgentId> Node::AgentsUp() const { return impl_->participant_listener.AgentsUp(); }
 

@@ -147,6 +147,9 @@ class Node {
   // is discovered and not gone, whether or not its endpoints exist yet (a target of a large
   // run takes seconds to make them). Not with ros2_naming (false).
   bool TargetUp() const;
+  // With a Discovery Server: since when (ToSeconds) its participant is listed up, this time;
+  // nullopt while it is not.
+  std::optional<double> DiscoveryServerSinceS() const;
   // The agent ids of the participants named agent-<id> that announced this run and are up
   // (discovered, not gone), whatever their endpoints. Empty with ros2_naming.
   std::set<AgentId> AgentsUp() const;
@@ -250,11 +253,11 @@ Timings EffectiveTimings(const Config& config);
 // (the target of a run whose agents were started first) costs no more than a few.
 double DiscoveryPatienceS(const Config& config, int restarts_in_place);
 
-// How long a Discovery Server client may hear nothing while the peers it should hear are still
-// listed up before it counts as forgotten by the server (protocol::SilenceWatch;
-// docs/FASTDDS_NOTES.md, "Forgotten by the server"): a participant lease and two
-// announcements. A peer that really went silent (a frozen or killed target) is dropped by the
-// server within its lease and the clients are told so, and then it is no longer listed up.
+// How long a Discovery Server client may go on hearing nothing after it found the server again
+// before it counts as forgotten by the server (protocol::SilenceWatch; docs/FASTDDS_NOTES.md,
+// "Forgotten by the server"): a participant lease and two announcements. A host cut off for
+// longer than the server's lease finds the server again at the heal and its peers within a
+// second or two.
 double ForgottenAfterS(const Timings& timings);
 
 // A steady_clock time point as seconds (the protocol's clock).

@@ -78,8 +78,7 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
       on_file_(ReadRowsOnFile(context, options)),
       node_(context.config, "target", context.run_name),
       protocol_(context.config, ProtocolOptions(context, options, on_file_)),
-      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
-      silence_watch_(dds::ForgottenAfterS(dds::EffectiveTimings(context.config))) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
   if (context_.options.append && !context_.options.out_dir.empty()) {
     earlier_counters_ = dds::EarlierCounters(CountersPath(), *context_.log);
   }
@@ -292,16 +291,23 @@ bool TargetNode::DiscoveryStoppedShort(double now_s) {
 }
 
 bool TargetNode::ForgottenByTheServer(double now_s) {
-  // No agent's state came for longer than a participant lease, no agent's state writer is
-  // alive, and agents' participants are still listed up: the server dropped the target and
+  // No agent's state came since before the server was last found again, nor for a
+  // participant lease after that, no agent's state writer is alive, and agents' participants
+  // are still listed up: the server dropped the target and
   // told the agents so (docs/FASTDDS_NOTES.md, "Forgotten by the server"). The new process
   // resumes after the agents' newest step.
   if (config_.network.discovery != DiscoveryKind::kServer || !protocol_.started()) return false;
-  if (!silence_watch_.Forgotten(now_s, alive_writers_.empty() && !node_.AgentsUp().empty())) return false;
+  const std::optional<double> server_since = node_.DiscoveryServerSinceS();
+  const std::optional<double> listed_since =
+      alive_writers_.empty() && !node_.AgentsUp().empty() ? server_since : std::nullopt;
+  if (!silence_watch_.Forgotten(now_s, dds::ForgottenAfterS(dds::EffectiveTimings(config_)), listed_since)) {
+    return false;
+  }
   const std::string why = fmt::format(
-      "heard no agent for {:.1f} s while agents' participants are still listed up: the Discovery Server took "
-      "the target for gone (docs/FASTDDS_NOTES.md, \"Forgotten by the server\")",
-      silence_watch_.silent_s(now_s));
+      "heard no agent for {:.1f} s, {:.1f} s of it since the Discovery Server was found again, while agents' "
+      "participants are still listed up: the server took the target for gone (docs/FASTDDS_NOTES.md, \"Forgotten "
+      "by the server\")",
+      silence_watch_.silent_s(now_s), now_s - *server_since);
   if (dds::MayRestartInPlace(*context_.log, why, "at step " + std::to_string(protocol_.current_step()))) {
     restart_in_place_ = true;
     return true;

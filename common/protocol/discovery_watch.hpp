@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 
 namespace deif::protocol {
 
@@ -45,25 +46,24 @@ class DiscoveryWatch {
 // (docs/FASTDDS_NOTES.md, "Forgotten by the server"): the server told every other process to
 // drop it, so nobody sends it anything, while its own view still lists them all (a client
 // leaves the other clients' leases to the server). Fast DDS 2.9.1 did not discover it again
-// for as long as the runs lasted; a new participant is discovered afresh.
+// for as long as the runs lasted; a new participant is discovered afresh. From the client's
+// side that silence looks like a host cut off, but for one thing: the client drops the server
+// when the server's lease runs out (the server no longer sends to it), and finds it again at
+// once, and still nothing comes. A host cut off finds the server again only at the heal, and
+// its peers soon after.
 class SilenceWatch {
  public:
-  // patience_s: how long nothing may arrive while the peers are listed up.
-  explicit SilenceWatch(double patience_s) : patience_s_(patience_s) {}
-
   // A sample came from the network at now_s.
   void Heard(double now_s) { heard_s_ = now_s; }
-  // True when nothing came for more than patience_s since the last sample, and `listed`: the
-  // transport still lists up the processes this one should hear from (and the caller sees
-  // nothing else of them, such as a live writer). Never before the
-  // first sample, nor again before the next one, nor once GaveUp.
-  bool Forgotten(double now_s, bool listed);
+  // True when the server was found again after the last sample (listed_since_s, since when
+  // it and the processes this one should hear from are listed up; nullopt if they are not),
+  // and nothing came for more than patience_s after that. Never before the first sample, nor
+  // twice for one silence, nor once GaveUp.
+  bool Forgotten(double now_s, double patience_s, std::optional<double> listed_since_s);
   void GiveUp() { given_up_ = true; }
-  double patience_s() const { return patience_s_; }
   double silent_s(double now_s) const { return heard_s_ < 0.0 ? 0.0 : now_s - heard_s_; }
 
  private:
-  double patience_s_;
   double heard_s_ = -1.0;
   double said_for_s_ = -1.0;  // the sample whose silence Forgotten already reported
   bool given_up_ = false;

@@ -63,25 +63,36 @@ TEST_CASE("Matching complete, or beyond what is up, is never stopped short", "[d
 // Forgotten by the server (docs/FASTDDS_NOTES.md).
 using deif::protocol::SilenceWatch;
 
-TEST_CASE("Silence counts as forgotten after the patience, only while the peers are listed up, "
-          "and once per silence",
+TEST_CASE("Silence counts as forgotten once the server was found again and still nothing came",
           "[discovery]") {
-  SilenceWatch watch(6.0);
-  CHECK_FALSE(watch.Forgotten(100.0, true));  // nothing heard yet: the run has not begun
+  SilenceWatch watch;
+  CHECK_FALSE(watch.Forgotten(100.0, 6.0, 50.0));  // nothing heard yet: the run has not begun
   watch.Heard(10.0);
-  CHECK_FALSE(watch.Forgotten(16.0, true));  // not more than the patience
-  CHECK_FALSE(watch.Forgotten(17.0, false));  // the peers are gone: told so, not forgotten
-  CHECK(watch.Forgotten(17.0, true));
-  CHECK_FALSE(watch.Forgotten(30.0, true));  // said once for this silence
-  watch.Heard(31.0);
-  CHECK_FALSE(watch.Forgotten(36.5, true));
-  CHECK(watch.silent_s(37.5) == Approx(6.5));
-  CHECK(watch.Forgotten(37.5, true));
+  // The server listed since before the last sample: a cut shorter than the server's lease,
+  // or a target that died. However long, not the server's forgetting.
+  CHECK_FALSE(watch.Forgotten(40.0, 6.0, 2.0));
+  // The server dropped (its lease ran out: it no longer sends to this client) and found again
+  // at 30.6: from then on the silence counts.
+  CHECK_FALSE(watch.Forgotten(30.7, 6.0, std::nullopt));
+  CHECK_FALSE(watch.Forgotten(36.6, 6.0, 30.6));
+  CHECK_FALSE(watch.Forgotten(36.7, 6.0, std::nullopt));  // the peers not listed: told so
+  CHECK(watch.Forgotten(36.7, 6.0, 30.6));
+  CHECK_FALSE(watch.Forgotten(40.0, 6.0, 30.6));  // said once for this silence
+}
+
+TEST_CASE("A host cut off that finds the server again and hears its peers is not forgotten",
+          "[discovery]") {
+  SilenceWatch watch;
+  watch.Heard(10.0);
+  CHECK_FALSE(watch.Forgotten(31.0, 6.0, 30.0));  // the heal: the server found again at 30
+  watch.Heard(31.5);                              // and the peers heard 1.5 s later
+  CHECK_FALSE(watch.Forgotten(40.0, 6.0, 30.0));
+  CHECK(watch.silent_s(40.0) == Approx(8.5));
 }
 
 TEST_CASE("A watch that gave up says nothing more", "[discovery]") {
-  SilenceWatch watch(6.0);
+  SilenceWatch watch;
   watch.Heard(0.0);
   watch.GiveUp();
-  CHECK_FALSE(watch.Forgotten(100.0, true));
+  CHECK_FALSE(watch.Forgotten(100.0, 6.0, 50.0));
 }
