@@ -46,7 +46,8 @@ AgentNode::AgentNode(dds::ProcessContext& context, AgentId id)
       timings_(dds::EffectiveTimings(context.config)),
       node_(context.config, "agent-" + std::to_string(id), context.run_name),
       protocol_(context.config, id, ProtocolOptions(context, id, instance_token_, timings_)),
-      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
+      forgetting_(timings_) {
   if (context_.options.append && !context_.options.out_dir.empty()) {
     earlier_counters_ = dds::EarlierCounters(CountersPath(), *context_.log);
   }
@@ -203,15 +204,7 @@ int AgentNode::Run() {
       }
     }
     for (const dds::Event& event : events) {
-      if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
-        if (change->alive) {
-          alive_writers_.insert(change->writer);
-        } else {
-          alive_writers_.erase(change->writer);
-        }
-      } else {
-        silence_watch_.Heard(now_s);
-      }
+      forgetting_.Note(event, now_s);
       Dispatch(event, now_s);
     }
     // More often while the target's roll call leaves out a member (the target may have seen
@@ -349,27 +342,17 @@ bool AgentNode::DiscoveryStoppedShort(double now_s) {
 }
 
 bool AgentNode::ForgottenByTheServer(double now_s) {
-  // Nothing came (no range, no contribution, no batch) since before the server was last found
-  // again, nor for a participant lease after that, no writer this agent reads is alive, and the
-  // target's participant is still listed up: the server dropped this client and told everyone
-  // else (docs/FASTDDS_NOTES.md, "Forgotten by
-  // the server"). A target that died leaves the peers' writers alive. With simple discovery
-  // every process times out each lease itself, and the two sides meet again.
+  // The server dropped this client and told everyone else (docs/FASTDDS_NOTES.md, "Forgotten
+  // by the server"). With simple discovery every process times out each lease itself, and
+  // the two sides meet again.
   if (config_.network.discovery != DiscoveryKind::kServer || protocol_.last_written_step() < 1) return false;
-  const std::optional<double> server_since = node_.DiscoveryServerSinceS();
-  const std::optional<double> listed_since =
-      alive_writers_.empty() && node_.TargetUp() ? server_since : std::nullopt;
-  if (!silence_watch_.Forgotten(now_s, dds::ForgottenAfterS(timings_), listed_since)) return false;
-  const std::string why = fmt::format(
-      "heard nothing for {:.1f} s, {:.1f} s of it since the Discovery Server was found again, while the target's "
-      "participant is still listed up: the server took this agent for gone (docs/FASTDDS_NOTES.md, \"Forgotten by "
-      "the server\")",
-      silence_watch_.silent_s(now_s), now_s - *server_since);
-  if (dds::MayRestartInPlace(*context_.log, why, "after step " + std::to_string(protocol_.last_written_step()))) {
+  const std::optional<std::string> why = forgetting_.Forgotten(node_, node_.TargetUp(), "nothing", now_s);
+  if (!why) return false;
+  if (dds::MayRestartInPlace(*context_.log, *why, "after step " + std::to_string(protocol_.last_written_step()))) {
     restart_in_place_ = true;
     return true;
   }
-  silence_watch_.GiveUp();  // said once; it goes on as it is
+  forgetting_.GiveUp();  // said once; it goes on as it is
   return false;
 }
 

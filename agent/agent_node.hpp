@@ -120,8 +120,7 @@ class AgentNode : public dds::Application {
   bool crashed_for_test_ = false;  // CrashForTest
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
-  protocol::SilenceWatch silence_watch_;  // network.discovery: server
-  std::set<protocol::SenderKey> alive_writers_;  // remote writers whose liveliness is alive
+  dds::ServerForgetting forgetting_;  // network.discovery: server
 };
 
 }  // namespace deif::agent

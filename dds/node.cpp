@@ -21,6 +21,8 @@
 #include <stdexcept>
 #include <thread>
 
+#include <spdlog/fmt/fmt.h>
+
 #include <fastdds/dds/core/condition/GuardCondition.hpp>
 #include <fastdds/dds/core/condition/StatusCondition.hpp>
 #include <fastdds/dds/core/condition/WaitSet.hpp>
@@ -188,6 +190,31 @@ double AssertPeriodOf(const TopicQos& spec, const Config& config) {
 
 double ForgottenAfterS(const Timings& timings) {
   return timings.participant_lease_s + 2.0 * timings.participant_announcement_s;
+}
+
+void ServerForgetting::Note(const Event& event, double now_s) {
+  if (const auto* change = std::get_if<LivelinessChange>(&event)) {
+    if (change->alive) {
+      alive_writers_.insert(change->writer);
+    } else {
+      alive_writers_.erase(change->writer);
+    }
+  } else {
+    watch_.Heard(now_s);
+  }
+}
+
+std::optional<std::string> ServerForgetting::Forgotten(const Node& node, bool peers_listed, const std::string& hears,
+                                                       double now_s) {
+  // No writer it reads alive: a target that died leaves the peers' writers alive.
+  const std::optional<double> server_since = node.DiscoveryServerSinceS();
+  if (!watch_.Forgotten(now_s, patience_s_, alive_writers_.empty() && peers_listed ? server_since : std::nullopt)) {
+    return std::nullopt;
+  }
+  return fmt::format("heard {} for {:.1f} s, {:.1f} s of it since the Discovery Server was found again, while the "
+                     "participants it should hear are still listed up: the server took this process for gone "
+                     "(docs/FASTDDS_NOTES.md, \"Forgotten by the server\")",
+                     hears, watch_.silent_s(now_s), now_s - *server_since);
 }
 
 double DiscoveryPatienceS(const Config& config, int restarts_in_place) {

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "common/config/config.hpp"
+#include "common/protocol/discovery_watch.hpp"
 #include "common/protocol/messages.hpp"
 #include "dds/topics.hpp"
 
@@ -259,6 +260,28 @@ double DiscoveryPatienceS(const Config& config, int restarts_in_place);
 // longer than the server's lease finds the server again at the heal and its peers within a
 // second or two.
 double ForgottenAfterS(const Timings& timings);
+
+// Whether a Discovery Server client was forgotten by the server (docs/FASTDDS_NOTES.md,
+// "Forgotten by the server"), from what the process takes from its node: the last sample, and
+// the remote writers whose liveliness is alive.
+class ServerForgetting {
+ public:
+  explicit ServerForgetting(const Timings& timings) : patience_s_(ForgottenAfterS(timings)) {}
+  // Every event the process takes (Node::Wait), at now_s.
+  void Note(const Event& event, double now_s);
+  // Why the process counts as forgotten now, once per silence (protocol::SilenceWatch), or
+  // nullopt. peers_listed: the processes it should hear from are listed up (the target for
+  // an agent, agents for the target). hears: what it heard nothing of ("nothing", "no agent").
+  std::optional<std::string> Forgotten(const Node& node, bool peers_listed, const std::string& hears,
+                                       double now_s);
+  // A process that may not start again any more goes on as it is: no more checks.
+  void GiveUp() { watch_.GiveUp(); }
+
+ private:
+  double patience_s_;
+  protocol::SilenceWatch watch_;
+  std::set<protocol::SenderKey> alive_writers_;
+};
 
 // A steady_clock time point as seconds (the protocol's clock).
 inline double ToSeconds(Clock::time_point t) {

@@ -78,7 +78,8 @@ TargetNode::TargetNode(dds::ProcessContext& context, TargetOptions options)
       on_file_(ReadRowsOnFile(context, options)),
       node_(context.config, "target", context.run_name),
       protocol_(context.config, ProtocolOptions(context, options, on_file_)),
-      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())) {
+      discovery_watch_(dds::DiscoveryPatienceS(context.config, dds::RestartsInPlace())),
+      forgetting_(dds::EffectiveTimings(context.config)) {
   if (context_.options.append && !context_.options.out_dir.empty()) {
     earlier_counters_ = dds::EarlierCounters(CountersPath(), *context_.log);
   }
@@ -183,15 +184,7 @@ int TargetNode::Run() {
     const double now_s = dds::ToSeconds(dds::Clock::now());
     if (protocol_.started()) delivery_.Record(events);  // from the first step on (as the agents)
     for (const dds::Event& event : events) {
-      if (const auto* change = std::get_if<dds::LivelinessChange>(&event)) {
-        if (change->alive) {
-          alive_writers_.insert(change->writer);
-        } else {
-          alive_writers_.erase(change->writer);
-        }
-      } else {
-        silence_watch_.Heard(now_s);
-      }
+      forgetting_.Note(event, now_s);
       Dispatch(event, now_s);
     }
     dds::LogReadersMadeAnew(node_, *context_.log);
@@ -291,28 +284,16 @@ bool TargetNode::DiscoveryStoppedShort(double now_s) {
 }
 
 bool TargetNode::ForgottenByTheServer(double now_s) {
-  // No agent's state came since before the server was last found again, nor for a
-  // participant lease after that, no agent's state writer is alive, and agents' participants
-  // are still listed up: the server dropped the target and
-  // told the agents so (docs/FASTDDS_NOTES.md, "Forgotten by the server"). The new process
-  // resumes after the agents' newest step.
+  // The server dropped the target and told the agents so (docs/FASTDDS_NOTES.md, "Forgotten
+  // by the server"). The new process resumes after the agents' newest step.
   if (config_.network.discovery != DiscoveryKind::kServer || !protocol_.started()) return false;
-  const std::optional<double> server_since = node_.DiscoveryServerSinceS();
-  const std::optional<double> listed_since =
-      alive_writers_.empty() && !node_.AgentsUp().empty() ? server_since : std::nullopt;
-  if (!silence_watch_.Forgotten(now_s, dds::ForgottenAfterS(dds::EffectiveTimings(config_)), listed_since)) {
-    return false;
-  }
-  const std::string why = fmt::format(
-      "heard no agent for {:.1f} s, {:.1f} s of it since the Discovery Server was found again, while agents' "
-      "participants are still listed up: the server took the target for gone (docs/FASTDDS_NOTES.md, \"Forgotten "
-      "by the server\")",
-      silence_watch_.silent_s(now_s), now_s - *server_since);
-  if (dds::MayRestartInPlace(*context_.log, why, "at step " + std::to_string(protocol_.current_step()))) {
+  const std::optional<std::string> why = forgetting_.Forgotten(node_, !node_.AgentsUp().empty(), "no agent", now_s);
+  if (!why) return false;
+  if (dds::MayRestartInPlace(*context_.log, *why, "at step " + std::to_string(protocol_.current_step()))) {
     restart_in_place_ = true;
     return true;
   }
-  silence_watch_.GiveUp();  // said once; it goes on as it is
+  forgetting_.GiveUp();  // said once; it goes on as it is
   return false;
 }
 

@@ -64,10 +64,9 @@ class TargetNode : public dds::Application {
   // dds::DiscoveryPatienceS), so that it starts again in place with a new participant
   // (docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"). Not with security.
   bool DiscoveryStoppedShort(double now_s);
-  // With a Discovery Server: whether the target heard no agent for longer than a participant
-  // lease, with no agent's writer alive, while agents' participants are still listed up (protocol::SilenceWatch), and is to
-  // start again in place with a new participant (docs/FASTDDS_NOTES.md, "Forgotten by the
-  // server").
+  // With a Discovery Server: whether the server forgot the target while agents' participants
+  // are still listed up (dds::ServerForgetting), and it is to start again in place with a new
+  // participant.
   bool ForgottenByTheServer(double now_s);
   void Execute(std::vector<protocol::TargetAction> actions);
   void ReadControl();  // the stdin thread: "go <step>" lines
@@ -91,8 +90,7 @@ class TargetNode : public dds::Application {
   std::thread control_thread_;
   std::vector<dds::Event> early_events_;  // taken during the start-up check, replayed after
   protocol::DiscoveryWatch discovery_watch_;
-  protocol::SilenceWatch silence_watch_;  // network.discovery: server
-  std::set<protocol::SenderKey> alive_writers_;  // remote writers whose liveliness is alive
+  dds::ServerForgetting forgetting_;  // network.discovery: server
   dds::DeliveryDelays delivery_;  // docs/ARTEFACTS.md, "Delivery delays"
 };
 
