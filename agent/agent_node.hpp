@@ -65,10 +65,9 @@ class AgentNode : public dds::Application {
   // (protocol::DiscoveryWatch) and it is to start again in place with a new participant. If
   // it already did so dds::kMaxRestartsInPlace times, it says so once and goes on.
   bool DiscoveryStoppedShort(double now_s);
-  // With a Discovery Server: whether this agent heard nothing for longer than a participant
-  // lease, with no remote writer alive, while the target's participant is still listed up
-  // (protocol::SilenceWatch), and is
-  // to start again in place with a new participant (as DiscoveryStoppedShort).
+  // With a Discovery Server: whether the server forgot this agent while the target's
+  // participant is still listed up (dds::ServerForgetting), and it is to start again in place
+  // with a new participant (as DiscoveryStoppedShort).
   bool ForgottenByTheServer(double now_s);
   // Tells the protocol what the transport has matched (docs/PROTOCOL.md, "Start").
   void ReportMatches(double now_s);

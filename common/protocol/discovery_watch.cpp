@@ -1,6 +1,5 @@
 #include "common/protocol/discovery_watch.hpp"
 
-
 namespace deif::protocol {
 
 bool DiscoveryWatch::Due(double now_s) {

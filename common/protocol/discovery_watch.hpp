@@ -42,7 +42,7 @@ class DiscoveryWatch {
   static constexpr double kCheckPeriodS = 0.5;
 };
 
-// A Discovery Server client the server took for gone while this client still hears the server
+// A Discovery Server client the server took for gone while this client still lists the server
 // (docs/FASTDDS_NOTES.md, "Forgotten by the server"): the server told every other process to
 // drop it, so nobody sends it anything, while its own view still lists them all (a client
 // leaves the other clients' leases to the server). Fast DDS 2.9.1 did not discover it again
