@@ -346,7 +346,7 @@ bool AgentNode::ForgottenByTheServer(double now_s) {
   // by the server"). With simple discovery every process times out each lease itself, and
   // the two sides meet again.
   if (config_.network.discovery != DiscoveryKind::kServer || protocol_.last_written_step() < 1) return false;
-  const std::optional<std::string> why = forgetting_.Forgotten(node_, node_.TargetUp(), "nothing", now_s);
+  const std::optional<std::string> why = forgetting_.Forgotten(node_, [this] { return node_.TargetUp(); }, "nothing", now_s);
   if (!why) return false;
   if (dds::MayRestartInPlace(*context_.log, *why, "after step " + std::to_string(protocol_.last_written_step()))) {
     restart_in_place_ = true;

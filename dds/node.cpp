@@ -204,11 +204,13 @@ void ServerForgetting::Note(const Event& event, double now_s) {
   }
 }
 
-std::optional<std::string> ServerForgetting::Forgotten(const Node& node, bool peers_listed, const std::string& hears,
-                                                       double now_s) {
-  // No writer it reads alive: a target that died leaves the peers' writers alive.
+std::optional<std::string> ServerForgetting::Forgotten(const Node& node, const std::function<bool()>& peers_listed,
+                                                       const std::string& hears, double now_s) {
+  // Forgotten takes a silence longer than the patience after the server was found again; no
+  // writer it reads alive (a target that died leaves the peers' writers alive).
+  if (watch_.silent_s(now_s) <= patience_s_ || !alive_writers_.empty()) return std::nullopt;
   const std::optional<double> server_since = node.DiscoveryServerSinceS();
-  if (!watch_.Forgotten(now_s, patience_s_, alive_writers_.empty() && peers_listed ? server_since : std::nullopt)) {
+  if (!watch_.Forgotten(now_s, patience_s_, server_since && peers_listed() ? server_since : std::nullopt)) {
     return std::nullopt;
   }
   return fmt::format("heard {} for {:.1f} s, {:.1f} s of it since the Discovery Server was found again, while the "

@@ -270,10 +270,12 @@ class ServerForgetting {
   // Every event the process takes (Node::Wait), at now_s.
   void Note(const Event& event, double now_s);
   // Why the process counts as forgotten now, once per silence (protocol::SilenceWatch), or
-  // nullopt. peers_listed: the processes it should hear from are listed up (the target for
-  // an agent, agents for the target). hears: what it heard nothing of ("nothing", "no agent").
-  std::optional<std::string> Forgotten(const Node& node, bool peers_listed, const std::string& hears,
-                                       double now_s);
+  // nullopt. peers_listed: whether the processes it should hear from are listed up (the
+  // target for an agent, agents for the target), asked only after a silence longer than the
+  // patience, as is the server (each takes a lock: not at every wake-up of the loop). hears:
+  // what it heard nothing of ("nothing", "no agent").
+  std::optional<std::string> Forgotten(const Node& node, const std::function<bool()>& peers_listed,
+                                       const std::string& hears, double now_s);
   // A process that may not start again any more goes on as it is: no more checks.
   void GiveUp() { watch_.GiveUp(); }
 

@@ -287,7 +287,8 @@ bool TargetNode::ForgottenByTheServer(double now_s) {
   // The server dropped the target and told the agents so (docs/FASTDDS_NOTES.md, "Forgotten
   // by the server"). The new process resumes after the agents' newest step.
   if (config_.network.discovery != DiscoveryKind::kServer || !protocol_.started()) return false;
-  const std::optional<std::string> why = forgetting_.Forgotten(node_, !node_.AgentsUp().empty(), "no agent", now_s);
+  const std::optional<std::string> why =
+      forgetting_.Forgotten(node_, [this] { return !node_.AgentsUp().empty(); }, "no agent", now_s);
   if (!why) return false;
   if (dds::MayRestartInPlace(*context_.log, *why, "at step " + std::to_string(protocol_.current_step()))) {
     restart_in_place_ = true;
