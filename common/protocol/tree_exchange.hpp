@@ -219,6 +219,11 @@ class TreeExchange {
   const int fanout_;
   double wait_s_;  // RelayWaitS of this agent's place in the tree
   const double late_gather_s_;
+  // Real time: a late item of a step whose deadline has passed here (the step's first_s +
+  // the deadline) can no longer make that step; it waits for the next batch sent that way,
+  // at most stale_gather_s_ (docs/SCALING.md, "Waiting"). 0 in lock-step: unused.
+  const double deadline_s_;
+  const double stale_gather_s_;
   const StepIndex keep_;  // steps kept behind (and ahead of) the newest roll call
 
   std::set<AgentId> given_;    // the members as last set (SetMembers)
@@ -233,6 +238,7 @@ class TreeExchange {
   StepIndex newest_ = 0;  // the newest step of a roll call, of this agent's own or of a batch
   bool heard_roll_call_ = false;  // a roll call of the target has reached this agent
   std::optional<double> late_since_;  // late items wait to go on since then
+  double late_gather_now_s_ = 0.0;    // ... for this long: late_gather_s_ or stale_gather_s_
   std::optional<StepIndex> forward_down_;  // what came down goes on to the children (the newest step)
   bool forward_late_ = false;              // what came late goes on outward
   void FlushForwarded();                   // both, at TakeActions

@@ -293,10 +293,10 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   CHECK_FALSE(up.down);
   CHECK(up.step == 1);
   REQUIRE(up.items.size() == 2);
-  // 4's batch, late: delivered here and, in real time, sent up at once as a batch of late
-  // ones.
+  // 4's batch, late but before the step's deadline (0.08 s after the relay heard of it):
+  // delivered here and, in real time, sent up at once as a batch of late ones.
   BatchMsg from4{kRun, 4, 1, false, {{WriterOf(4), Contribution(4, 1)}}};
-  relay.OnBatch(from4, 1.3);
+  relay.OnBatch(from4, 1.05);
   actions = relay.TakeActions();
   int sends = 0, delivers = 0;
   for (const auto& a : actions) {
@@ -311,6 +311,87 @@ TEST_CASE("A relay forwards without a slow child, then the child's batch as it a
   }
   CHECK(sends == 1);
   CHECK(delivers == 1);
+}
+
+TEST_CASE("In real time a late item past its step's deadline goes with the next batch, or a period later",
+          "[protocol][tree]") {
+  const deif::Config config = ConfigFor(7, 2, 0.05);  // period 0.1 s, deadline 0.08 s
+  // 2 relays 4 and 5.
+  const auto late_sends = [](std::vector<protocol::TreeAction> actions) {
+    std::vector<BatchMsg> sends;
+    for (auto& a : actions) {
+      if (auto* s = std::get_if<protocol::tree_action::Send>(&a)) sends.push_back(s->batch);
+    }
+    return sends;
+  };
+  const auto items_of = [](const BatchMsg& batch) {
+    std::vector<std::pair<StepIndex, AgentId>> items;
+    for (const auto& item : batch.items) items.emplace_back(item.msg.step, item.msg.agent_id);
+    return items;
+  };
+  TreeExchange relay(config, TreeExchange::Options{2, kRun, WriterOf(2)});
+  relay.SetMembers({1, 2, 3, 4, 5, 6, 7}, 0.0);
+  relay.TakeActions();
+  relay.OnRollCall(1, Range(1, 7), 1.0);
+  relay.OnOwn(Contribution(2, 1), 1.0);
+  relay.OnBatch(BatchMsg{kRun, 5, 1, false, {{WriterOf(5), Contribution(5, 1)}}}, 1.01);
+  relay.OnTimer(1.0 + 0.08 / 3.0);
+  std::vector<BatchMsg> sent = late_sends(relay.TakeActions());
+  REQUIRE(sent.size() == 1);  // step 1 without 4
+  CHECK(sent[0].step == 1);
+
+  SECTION("with the next step's batch") {
+    // 4's batch of step 1 comes 0.09 s after the relay heard of step 1: past its deadline.
+    relay.OnBatch(BatchMsg{kRun, 4, 1, false, {{WriterOf(4), Contribution(4, 1)}}}, 1.09);
+    CHECK(late_sends(relay.TakeActions()).empty());
+    REQUIRE(relay.NextDeadline().has_value());
+    CHECK(*relay.NextDeadline() == Approx(1.09 + 0.1));  // at most a period
+    // Step 2 comes, complete: its batch carries 4's late item of step 1 too.
+    relay.OnRollCall(2, Range(1, 7), 1.1);
+    relay.OnOwn(Contribution(2, 2), 1.1);
+    relay.OnBatch(BatchMsg{kRun, 4, 2, false, {{WriterOf(4), Contribution(4, 2)}}}, 1.101);
+    relay.OnBatch(BatchMsg{kRun, 5, 2, false, {{WriterOf(5), Contribution(5, 2)}}}, 1.102);
+    sent = late_sends(relay.TakeActions());
+    REQUIRE(sent.size() == 1);
+    CHECK(sent[0].step == 2);
+    const std::vector<std::pair<StepIndex, AgentId>> expected{{1, 4}, {2, 2}, {2, 4}, {2, 5}};
+    std::vector<std::pair<StepIndex, AgentId>> got = items_of(sent[0]);
+    std::sort(got.begin(), got.end());
+    CHECK(got == expected);
+    // Nothing is left to go late.
+    relay.OnTimer(1.3);
+    CHECK(late_sends(relay.TakeActions()).empty());
+  }
+  SECTION("a period later when no batch goes") {
+    relay.OnBatch(BatchMsg{kRun, 4, 1, false, {{WriterOf(4), Contribution(4, 1)}}}, 1.09);
+    CHECK(late_sends(relay.TakeActions()).empty());
+    relay.OnTimer(1.18);
+    CHECK(late_sends(relay.TakeActions()).empty());
+    REQUIRE(relay.NextDeadline().has_value());
+    CHECK(*relay.NextDeadline() == Approx(1.19));
+    relay.OnTimer(*relay.NextDeadline());
+    sent = late_sends(relay.TakeActions());
+    REQUIRE(sent.size() == 1);
+    CHECK(sent[0].step == 0);
+    CHECK(items_of(sent[0]) == std::vector<std::pair<StepIndex, AgentId>>{{1, 4}});
+  }
+  SECTION("at once with a late item that may still make its step") {
+    relay.OnBatch(BatchMsg{kRun, 4, 1, false, {{WriterOf(4), Contribution(4, 1)}}}, 1.09);
+    CHECK(late_sends(relay.TakeActions()).empty());
+    // Step 2's batch went without 5; 5's item of step 2 comes within step 2's deadline.
+    relay.OnRollCall(2, Range(1, 7), 1.1);
+    relay.OnOwn(Contribution(2, 2), 1.1);
+    relay.OnBatch(BatchMsg{kRun, 4, 2, false, {{WriterOf(4), Contribution(4, 2)}}}, 1.101);
+    relay.OnTimer(1.1 + 0.08 / 3.0);
+    sent = late_sends(relay.TakeActions());
+    REQUIRE(sent.size() == 1);
+    CHECK(sent[0].step == 2);
+    relay.OnBatch(BatchMsg{kRun, 5, 2, false, {{WriterOf(5), Contribution(5, 2)}}}, 1.15);
+    sent = late_sends(relay.TakeActions());
+    REQUIRE(sent.size() == 1);
+    CHECK(sent[0].step == 0);
+    CHECK(items_of(sent[0]) == std::vector<std::pair<StepIndex, AgentId>>{{2, 5}});
+  }
 }
 
 TEST_CASE("The height of an agent in the tree: the most hops up to it from below", "[protocol][tree]") {
