@@ -221,6 +221,10 @@ int AgentNode::Run() {
     if (tree_) tree_->OnTimer(now_s);
     protocol_.OnTimer(now_s);
     Pump();
+    if (now_s >= counters_due_s_) {  // a kill -9 loses at most the last second of them
+      WriteCounters();
+      counters_due_s_ = now_s + dds::kCountersEveryS;
+    }
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
     if (ThrowForTest()) dds::ThrowInAThreadForTest();
     if (CrashForTest()) dds::CrashInAThreadForTest();
@@ -413,7 +417,7 @@ void AgentNode::WriteCounters() const {
                                    {"links_down_remade", tree_ ? tree_->links_down_remade() : 0},
                                    {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", c.by_reason}, {"delivery_ms", delivery_.ToJson()}};
-  std::ofstream(CountersPath()) << dds::AddEarlierCounters(earlier_counters_, counters).dump(2) << "\n";
+  dds::WriteCounters(CountersPath(), dds::AddEarlierCounters(earlier_counters_, counters), *context_.log);
 }
 
 bool AgentNode::Authorised(AgentId claimed, const protocol::SenderKey& writer) const {

@@ -93,6 +93,7 @@ class AgentNode : public dds::Application {
   // What the earlier process wrote there, for a process started again (--append): its counts
   // go on from them (dds::AddEarlierCounters).
   nlohmann::json earlier_counters_;
+  double counters_due_s_ = 0.0;  // when the counters are written next while it runs
 
   dds::ProcessContext& context_;
   const Config& config_;

@@ -36,4 +36,20 @@ nlohmann::json AddEarlierCounters(const nlohmann::json& earlier, nlohmann::json 
   return now;
 }
 
+void WriteCounters(const std::string& path, const nlohmann::json& counters, spdlog::logger& log) {
+  const std::string temporary = path + ".part";
+  {
+    std::ofstream out(temporary, std::ios::trunc);
+    out << counters.dump(2) << "\n";
+    out.flush();
+    if (!out) {
+      log.warn("{}: cannot write the counters", temporary);
+      return;
+    }
+  }
+  std::error_code error;
+  std::filesystem::rename(temporary, path, error);
+  if (error) log.warn("{}: cannot rename it to {}: {}", temporary, path, error.message());
+}
+
 }  // namespace deif::dds

@@ -198,6 +198,10 @@ int TargetNode::Run() {
     if (!protocol_.started()) protocol_.OnRangeReaders(node_.MatchedReaderKeys(dds::Topic::kRange));
     protocol_.OnTimer(now_s);
     Execute(protocol_.TakeActions());
+    if (now_s >= counters_due_s_) {  // a kill -9 loses at most the last second of them
+      WriteCounters();
+      counters_due_s_ = now_s + dds::kCountersEveryS;
+    }
     if ((!protocol_.started() && DiscoveryStoppedShort(now_s)) || ForgottenByTheServer(now_s)) {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
@@ -257,7 +261,7 @@ void TargetNode::WriteCounters() const {
                                    {"grace_factor", protocol_.grace_factor()},
                                    {"by_reason", protocol_.rejected_by_reason()},
                                    {"delivery_ms", delivery_.ToJson()}};
-  std::ofstream(CountersPath()) << dds::AddEarlierCounters(earlier_counters_, counters).dump(2) << "\n";
+  dds::WriteCounters(CountersPath(), dds::AddEarlierCounters(earlier_counters_, counters), *context_.log);
 }
 
 bool TargetNode::DiscoveryStoppedShort(double now_s) {

@@ -57,6 +57,7 @@ class TargetNode : public dds::Application {
   // What the earlier process wrote there, for a process started again (--append): its counts
   // go on from them (dds::AddEarlierCounters).
   nlohmann::json earlier_counters_;
+  double counters_due_s_ = 0.0;  // when the counters are written next while it runs
   bool DeafForTest() const;  // DEIF_FAULT_DEAF (dds::FaultDeafStep)
   bool CrashForTest(StepIndex step);  // DEIF_FAULT_CRASH (dds::FaultCrashStep), once
   // While it waits for the agents: whether its range writer has stopped short of agents that

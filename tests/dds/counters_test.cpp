@@ -51,3 +51,27 @@ TEST_CASE("Earlier counters that are missing or unreadable count as none", "[cou
   CHECK(AddEarlierCounters(json{{"late", "x"}}, json{{"late", 2}})["late"] == 2);
   std::filesystem::remove_all(dir);
 }
+
+TEST_CASE("Counters are written whole, over the ones written before", "[counters]") {
+  auto log = std::make_shared<spdlog::logger>("test", std::make_shared<spdlog::sinks::null_sink_mt>());
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "deif_counters_write_test";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string path = (dir / "agent_1.counters.json").string();
+  deif::dds::WriteCounters(path, json{{"late", 1}, {"deadline_misses", 9}}, *log);
+  CHECK(EarlierCounters(path, *log) == json{{"late", 1}, {"deadline_misses", 9}});
+  deif::dds::WriteCounters(path, json{{"late", 2}}, *log);
+  CHECK(EarlierCounters(path, *log) == json{{"late", 2}});
+  // Nothing but the file is left beside it.
+  int files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    CHECK(entry.path().filename() == "agent_1.counters.json");
+    ++files;
+  }
+  CHECK(files == 1);
+  // A folder that is gone: said, not thrown, and nothing is written.
+  const std::string nowhere = (dir / "gone" / "agent_1.counters.json").string();
+  CHECK_NOTHROW(deif::dds::WriteCounters(nowhere, json{{"late", 3}}, *log));
+  CHECK_FALSE(std::filesystem::exists(nowhere));
+  std::filesystem::remove_all(dir);
+}

@@ -167,6 +167,10 @@ def test_killed_in_a_step(work, domain):
     try:
         lau.start()
         lau.wait_for_step(300)
+        until = time.time() + 1.5  # its counters written at least once since step 1 (once a second)
+        while time.time() < until:
+            lau.service()
+            time.sleep(0.02)
         victim = lau.procs["agent_3"]
         victim.expected_death = True
         victim.popen.send_signal(signal.SIGKILL)
@@ -187,6 +191,14 @@ def test_killed_in_a_step(work, domain):
             log_excerpt(res.out_dir, j)
         after = [r for r in rows(res.out_dir, j) if int(r["step"]) > killed_at + 10]
         assert len(after) > 100 and all(r["fused"] == "3" for r in after), j
+    # The killed agent's counters, written once a second while it ran (docs/ARTEFACTS.md):
+    # whole, with ranges it took after step 1 (of the 300 and more it wrote).
+    with open(os.path.join(res.out_dir, "agent_3.counters.json")) as f:
+        counters = json.load(f)
+    taken = counters["delivery_ms"]["range"]["count"]
+    written = steps_of(res.out_dir, 3)[-1]
+    assert written >= 300 and 0 < taken <= written + 2, (taken, written)
+    assert counters["rejected"] == 0 and "deadline_misses" in counters, counters
 
 
 def test_down_to_two(work, domain):
