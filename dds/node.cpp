@@ -112,8 +112,8 @@ TopicQos QosOf(Topic topic, const NetworkConfig& network) {
 // more heartbeats, which draw more acknowledgements.
 constexpr double kLivelinessBudgetPerS = 4000.0;
 constexpr double kHeartbeatBudgetPerS = 20000.0;
-// The target's share in real time: heartbeats of its writers of ranges and of the agents'
-// state writers, N of each (WriterQos).
+// The target's share in real time: heartbeats of the agents' state writers, N of them
+// (WriterHeartbeatS).
 constexpr double kTargetHeartbeatBudgetPerS = 2000.0;
 // Participant announcements grow as N^2 too: each process's reaches every other, a wake-up
 // of a receive thread each. At N = 64 the default 0.5 s period made 8320 a second; within
@@ -251,6 +251,45 @@ void ApplyCommon(Qos& qos, const TopicQos& spec, int depth, const Config& config
   }
 }
 
+}  // namespace
+
+double WriterHeartbeatS(Topic topic, const Config& config, bool per_agent_writer) {
+  const double budgeted = EffectiveTimings(config).heartbeat_period_s;
+  if (config.scenario.mode != StepMode::kRealTime) return budgeted;
+  // In real time a lost sample delays its reader past the deadline, and with it every
+  // agent that waits for what the reader sends next (a lost range: that agent's
+  // contribution, missing from every agent's step). The N^2 budget is for writers that
+  // every agent reads; these have a few readers each, so they may repair sooner
+  // (docs/BENCHMARKS.md, "Repairs in real time, measured 2026-11-26"). Not in lock-step,
+  // where on one busy host slow acknowledgements drew more heartbeats and cost 20 % of the
+  // steps a second (docs/BENCHMARKS.md, "The tree exchange, measured 2026-11-26").
+  const double n = config.agents.count;
+  const bool udp = config.network.transport == TransportKind::kUdp;
+  if (topic == Topic::kRelayUp || topic == Topic::kRelayDown || (topic == Topic::kRange && per_agent_writer && udp)) {
+    // At most tree_fanout readers each, spread over the agents: 2 N pairs in the network
+    // (20 agents, 3 hosts, 10 % loss, 10 Hz: 97 % of the agent-steps complete against 81 %).
+    // The target's writer of one agent's ranges, over UDPv4 (the runs across hosts, where
+    // samples are lost in transit), repairs as soon: a range repaired after the 32 ms of the
+    // target's own budget (below) at 64 agents came after the agent's relay had sent its
+    // batch up, and the contribution went late to every agent (64 agents, 4 hosts, 5 % loss,
+    // 10 Hz: the steps agreed at a median of 27 % against 2 %, docs/BENCHMARKS.md, "Late
+    // batches at 64 agents with loss").
+    return std::max(config.network.heartbeat_period_s, 2.0 * n / kHeartbeatBudgetPerS);
+  }
+  if (topic == Topic::kAgentState && udp) {
+    // An agent's state (read by the target), where samples can be lost in transit (UDPv4
+    // only: the runs across hosts). The N writers meet in the target, the busiest process,
+    // so their heartbeats keep within a budget of its own. Not over shared memory, where
+    // nothing is lost on the way and heartbeats only cost: at 64 agents on one 2-core host,
+    // 6.4 ms for these and the ranges made the target fall behind after a kill and stay
+    // behind, 12.8 ms from the first step, and 32 ms in 1 run of 4, from step 230 on.
+    return std::max(config.network.heartbeat_period_s, n / kTargetHeartbeatBudgetPerS);
+  }
+  return budgeted;
+}
+
+namespace {
+
 // per_agent_writer: one of the target's writers of ranges, one per agent (d.range_partitions).
 fdds::DataWriterQos WriterQos(Topic topic, const Config& config, bool per_agent_writer = false) {
   const TopicQos spec = QosOf(topic, config.network);
@@ -259,34 +298,7 @@ fdds::DataWriterQos WriterQos(Topic topic, const Config& config, bool per_agent_
   // A lost sample is repaired one heartbeat later: Fast DDS's default (3 s) is far longer
   // than a step (docs/FASTDDS_NOTES.md). Heartbeats are sent only while samples are unacked.
   auto& times = qos.reliable_writer_qos().times;
-  times.heartbeatPeriod = DdsDuration(EffectiveTimings(config).heartbeat_period_s);
-  if (config.scenario.mode == StepMode::kRealTime) {
-    // In real time a lost sample delays its reader past the deadline, and with it every
-    // agent that waits for what the reader sends next (a lost range: that agent's
-    // contribution, missing from every agent's step). The N^2 budget above is for writers
-    // that every agent reads; these have a few readers each, so they may repair sooner
-    // (docs/BENCHMARKS.md, "Repairs in real time, measured 2026-11-26"). Not in lock-step,
-    // where on one busy host slow acknowledgements drew more heartbeats and cost 20 % of the
-    // steps a second (docs/BENCHMARKS.md, "The tree exchange, measured 2026-11-26").
-    const double n = config.agents.count;
-    if (topic == Topic::kRelayUp || topic == Topic::kRelayDown) {
-      // At most tree_fanout readers each, spread over the agents: 2 N pairs in the network
-      // (20 agents, 3 hosts, 10 % loss, 10 Hz: 97 % of the agent-steps complete against 81 %).
-      times.heartbeatPeriod = DdsDuration(std::max(config.network.heartbeat_period_s,
-                                                   2.0 * n / kHeartbeatBudgetPerS));
-    } else if ((topic == Topic::kAgentState || (topic == Topic::kRange && per_agent_writer)) &&
-               config.network.transport == TransportKind::kUdp) {
-      // An agent's state (read by the target) and the target's writer of one agent's ranges,
-      // where samples can be lost in transit (UDPv4 only: the runs across hosts). The N
-      // pairs of each meet in the target, the busiest process, so their heartbeats keep
-      // within a budget of its own. Not over shared memory, where nothing is lost on the
-      // way and heartbeats only cost: at 64 agents on one 2-core host, 6.4 ms made the
-      // target fall behind after a kill and stay behind, 12.8 ms from the first step, and
-      // 32 ms in 1 run of 4, from step 230 on.
-      times.heartbeatPeriod = DdsDuration(std::max(config.network.heartbeat_period_s,
-                                                   n / kTargetHeartbeatBudgetPerS));
-    }
-  }
+  times.heartbeatPeriod = DdsDuration(WriterHeartbeatS(topic, config, per_agent_writer));
   times.nackResponseDelay = DdsDuration(config.network.nack_response_delay_s);
   times.nackSupressionDuration = Duration_t(0, 0);
   qos.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;

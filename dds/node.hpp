@@ -246,6 +246,12 @@ struct Timings {
   double peer_grace_s = 0.0;
 };
 Timings EffectiveTimings(const Config& config);
+// The heartbeat period of a writer of `topic` [s]: a lost sample is repaired about one period
+// later. EffectiveTimings' budgeted period, but, in real time, shorter for the writers with
+// few readers each (the relays', and the target's writer of one agent's ranges over UDPv4),
+// and within a budget of the target's own for the agents' state writers over UDPv4.
+// per_agent_writer: one of the target's writers of ranges, one per agent.
+double WriterHeartbeatS(Topic topic, const Config& config, bool per_agent_writer = false);
 // How long a process's endpoint discovery may stay short of the participants it sees, unchanged,
 // before it starts again in place with a new participant (protocol::DiscoveryWatch;
 // docs/FASTDDS_NOTES.md, "Endpoint discovery that stops short"): matching under way at N = 64

@@ -121,3 +121,34 @@ TEST_CASE("a stalled secure participant waits longer in a larger network and at 
   CHECK(deif::dds::RestartWindowS(5, 64) == Approx(20.0));  // capped
   CHECK(deif::dds::RestartWindowS(0, 0) == Approx(0.4));    // never a zero window
 }
+
+TEST_CASE("writers' heartbeats: the budget, and sooner repairs in real time where readers are few",
+          "[dds][timings]") {
+  using deif::dds::Topic;
+  using deif::dds::WriterHeartbeatS;
+  deif::Config c = WithAgents(64);  // budgeted: 4160 pairs within 20 000 a second, 0.208 s
+  c.network.transport = deif::TransportKind::kUdp;
+  // Lock-step: the budget for every writer.
+  for (Topic topic : deif::dds::kAllTopics) CHECK(WriterHeartbeatS(topic, c, true) == Approx(0.208));
+  c.scenario.mode = deif::StepMode::kRealTime;
+  // Real time: relays (at most fan-out readers each) and the target's writer of one agent's
+  // ranges over UDPv4 at 2 N / 20 000 s; the agents' states, all read by the target, at
+  // N / 2000 s; the rest at the budget.
+  CHECK(WriterHeartbeatS(Topic::kRelayUp, c) == Approx(0.0064));
+  CHECK(WriterHeartbeatS(Topic::kRelayDown, c) == Approx(0.0064));
+  CHECK(WriterHeartbeatS(Topic::kRange, c, /*per_agent_writer=*/true) == Approx(0.0064));
+  CHECK(WriterHeartbeatS(Topic::kRange, c, /*per_agent_writer=*/false) == Approx(0.208));
+  CHECK(WriterHeartbeatS(Topic::kAgentState, c) == Approx(0.032));
+  CHECK(WriterHeartbeatS(Topic::kContribution, c) == Approx(0.208));
+  CHECK(WriterHeartbeatS(Topic::kTruth, c) == Approx(0.208));
+  // Over shared memory nothing is lost in transit: ranges and states keep the budget.
+  c.network.transport = deif::TransportKind::kShm;
+  CHECK(WriterHeartbeatS(Topic::kRange, c, true) == Approx(0.208));
+  CHECK(WriterHeartbeatS(Topic::kAgentState, c) == Approx(0.208));
+  CHECK(WriterHeartbeatS(Topic::kRelayDown, c) == Approx(0.0064));
+  // Never shorter than configured: 4 agents keep the configured 5 ms.
+  deif::Config few = WithAgents(4);
+  few.network.transport = deif::TransportKind::kUdp;
+  few.scenario.mode = deif::StepMode::kRealTime;
+  for (Topic topic : deif::dds::kAllTopics) CHECK(WriterHeartbeatS(topic, few, true) == Approx(0.005));
+}
