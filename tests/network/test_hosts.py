@@ -201,7 +201,10 @@ def test_tree_lockstep_partition_32_agents(work, domain):
     (docs/FASTDDS_NOTES.md, "A reader moved and moved back"). The heal is also where Fast
     DDS's reader can lose track of a change and hand it out for ever (docs/FASTDDS_NOTES.md,
     "A reader that hands out one sample for ever"): the run ended by its timeout once."""
-    n, steps = 32, 500
+    # Lock-step runs as fast as it can: without the cut-off agents a quiet machine ran 128
+    # steps a second through the 3 s cut (the heal at step 425), so the run is long enough
+    # for 100 steps after a heal that late and more.
+    n, steps = 32, 900
     res = launcher.run(DEFAULT, os.path.join(work, "run"), agents=n, domain=domain, steps=steps, hosts=3,
                        partitions=[launcher.Partition(40, 3.0, 3)], progress=False)
     assert res.ok, res.why_not_ok()
