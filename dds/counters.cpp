@@ -1,5 +1,6 @@
 #include "dds/counters.hpp"
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
 
@@ -37,19 +38,23 @@ nlohmann::json AddEarlierCounters(const nlohmann::json& earlier, nlohmann::json 
 }
 
 void WriteCounters(const std::string& path, const nlohmann::json& counters, spdlog::logger& log) {
+  // Written once a second: a folder that cannot be written is said once, not every second.
+  static std::atomic<bool> said{false};
   const std::string temporary = path + ".part";
   {
     std::ofstream out(temporary, std::ios::trunc);
     out << counters.dump(2) << "\n";
     out.flush();
     if (!out) {
-      log.warn("{}: cannot write the counters", temporary);
+      if (!said.exchange(true)) log.warn("{}: cannot write the counters (said once)", temporary);
       return;
     }
   }
   std::error_code error;
   std::filesystem::rename(temporary, path, error);
-  if (error) log.warn("{}: cannot rename it to {}: {}", temporary, path, error.message());
+  if (error && !said.exchange(true)) {
+    log.warn("{}: cannot rename it to {}: {} (said once)", temporary, path, error.message());
+  }
 }
 
 }  // namespace deif::dds

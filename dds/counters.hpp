@@ -27,7 +27,7 @@ constexpr double kCountersEveryS = 1.0;
 
 // Writes `counters` to `path` whole: to a temporary file beside it, renamed over it, so that a
 // process killed while it writes leaves the file it wrote before, never half of one. Says
-// on `log` when it cannot (the run goes on).
+// on `log` when it cannot, once per process (the run goes on).
 void WriteCounters(const std::string& path, const nlohmann::json& counters, spdlog::logger& log);
 
 }  // namespace deif::dds

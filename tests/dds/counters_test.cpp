@@ -5,7 +5,10 @@
 #include <filesystem>
 #include <fstream>
 
+#include <sstream>
+
 #include <spdlog/sinks/null_sink.h>
+#include <spdlog/sinks/ostream_sink.h>
 
 #include "dds/counters.hpp"
 
@@ -69,9 +72,18 @@ TEST_CASE("Counters are written whole, over the ones written before", "[counters
     ++files;
   }
   CHECK(files == 1);
-  // A folder that is gone: said, not thrown, and nothing is written.
+  // A folder that is gone: said once (not at every write), not thrown, and nothing is written.
+  std::ostringstream said;
+  auto told = std::make_shared<spdlog::logger>("told", std::make_shared<spdlog::sinks::ostream_sink_mt>(said));
   const std::string nowhere = (dir / "gone" / "agent_1.counters.json").string();
-  CHECK_NOTHROW(deif::dds::WriteCounters(nowhere, json{{"late", 3}}, *log));
+  CHECK_NOTHROW(deif::dds::WriteCounters(nowhere, json{{"late", 3}}, *told));
+  CHECK_NOTHROW(deif::dds::WriteCounters(nowhere, json{{"late", 4}}, *told));
   CHECK_FALSE(std::filesystem::exists(nowhere));
+  const std::string text = said.str();
+  std::size_t times = 0;
+  for (std::size_t at = text.find("cannot write"); at != std::string::npos; at = text.find("cannot write", at + 1)) {
+    ++times;
+  }
+  CHECK(times == 1);
   std::filesystem::remove_all(dir);
 }
