@@ -830,7 +830,19 @@ void AgentProtocol::FinishStep(double now_s) {
         positions[member] = peer->second.last_position->second;
       }
     }
-    const MotionResult motion = MoveOnRing(config_, id_, p_estimate, position_m_, positions);
+    // Alone: no other member alive here, and none in the ring (a restarted agent that has not
+    // yet heard its peers is not alone: the roll call names them).
+    const bool alone = MemberCount() == 1 &&
+                       std::all_of(ring_ids.begin(), ring_ids.end(), [this](AgentId m) { return m == id_; });
+    if (alone != alone_ && config_.agents.control_law != ControlLawKind::kStationary) {
+      Log(alone ? LogLevel::kWarn : LogLevel::kInfo,
+          alone ? "step " + std::to_string(r.step) +
+                      ": alone: one range fixes only the distance to the target; circling the "
+                      "estimate (docs/ARCHITECTURE.md, \"A lone agent\")"
+                : "step " + std::to_string(r.step) + ": no longer alone; back to the ring");
+    }
+    alone_ = alone;
+    const MotionResult motion = MoveOnRing(config_, id_, p_estimate, position_m_, positions, alone);
     position_m_ = motion.position_m;
     angle_rad_ = motion.angle_rad;
   } else {

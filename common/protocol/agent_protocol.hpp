@@ -348,6 +348,7 @@ class AgentProtocol {
   // Motion.
   Vector2 position_m_;
   double angle_rad_;
+  bool alone_ = false;  // the last move was a lone agent's circling (docs/ARCHITECTURE.md)
   std::vector<Vector2> published_positions_;  // recent positions, for stale-range detection
 
   // Peers and the target.

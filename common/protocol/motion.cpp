@@ -12,7 +12,7 @@ double AngleAbout(const Vector2& centre, const Vector2& p) {
 
 MotionResult MoveOnRing(const Config& config, AgentId self, const Vector2& p_estimate,
                         const Vector2& own_position,
-                        const std::map<AgentId, Vector2>& member_positions) {
+                        const std::map<AgentId, Vector2>& member_positions, bool alone) {
   std::vector<RingMember> ring;
   ring.reserve(member_positions.size() + 1);
   for (const auto& [member_id, p_member] : member_positions) {
@@ -25,7 +25,15 @@ MotionResult MoveOnRing(const Config& config, AgentId self, const Vector2& p_est
   result.position_m = own_position;
   if (config.agents.control_law != ControlLawKind::kStationary) {
     // eq (3.2) / (3.6): the next angle; the goal lies on the circle about the estimate.
-    const double next_angle_rad = NextAngle(config.agents.control_law, self, ring);
+    double next_angle_rad = NextAngle(config.agents.control_law, self, ring);
+    if (alone && ring.size() == 1) {
+      // A lone agent (every other member lost): one range fixes only the distance to the
+      // target (the FIM of one sensor is singular: det J = 0 in eq (2.6)), and the laws leave
+      // it where it is. It circles the estimate instead, covering the arc of one step at
+      // full speed, so that its ranges come from changing bearings (docs/ARCHITECTURE.md,
+      // "A lone agent").
+      next_angle_rad += config.agents.max_speed_mps * config.scenario.dt_s / config.agents.radius_m;
+    }
     const Vector2 p_goal = PointOnCircle(p_estimate, config.agents.radius_m, next_angle_rad);
     result.position_m = MoveToward(own_position, p_goal,
                                    config.agents.max_speed_mps * config.scenario.dt_s);

@@ -85,3 +85,32 @@ TEST_CASE("An agent missing from the member positions is placed at its own posit
   CHECK(with.position_m == without.position_m);
   CHECK(without.ring_size == 3);
 }
+
+TEST_CASE("A lone agent circles the estimate by the arc of one step at full speed", "[motion]") {
+  // Alone at (2, 0) about the estimate (0, 0), radius 2, 1 m/s, dt 0.1 s: the arc of one
+  // step is 0.1 m, 0.05 rad of the circle; the chord to that point, 4 sin(0.025) = 0.09999 m,
+  // is within the step, so the agent lands on the circle at 0.05 rad.
+  const Config config = deif::ParseConfig(ThreeAgents("voronoi", 1.0), "inline");
+  const std::map<AgentId, Vector2> alone_at{{1, Vector2(2.0, 0.0)}};
+  const auto m = deif::MoveOnRing(config, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, /*alone=*/true);
+  CHECK(m.angle_rad == Approx(0.05));
+  CHECK(m.position_m.x() == Approx(2.0 * std::cos(0.05)));
+  CHECK(m.position_m.y() == Approx(2.0 * std::sin(0.05)));
+  CHECK(m.ring_size == 1);
+  // Law 1 circles the same way.
+  const Config law1 = deif::ParseConfig(ThreeAgents("midpoint", 1.0), "inline");
+  CHECK(deif::MoveOnRing(law1, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, true).angle_rad ==
+        Approx(0.05));
+  // Not alone (a restarted agent that has not heard its peers yet): the thesis's laws, which
+  // leave a ring of one where it is.
+  CHECK(deif::MoveOnRing(config, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, false).position_m ==
+        Vector2(2.0, 0.0));
+  // The stationary law stays stationary, alone or not.
+  const Config still = deif::ParseConfig(ThreeAgents("stationary", 1.0), "inline");
+  CHECK(deif::MoveOnRing(still, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, true).position_m ==
+        Vector2(2.0, 0.0));
+  // Alone but with a ring of more (positions of members it still names): the ring's law.
+  const Config fast = deif::ParseConfig(ThreeAgents("voronoi", 1000.0), "inline");
+  const auto ringed = deif::MoveOnRing(fast, 2, Vector2::Zero(), Positions()[2], Positions(), true);
+  CHECK(ringed.angle_rad == Approx(0.5 + (kPi - 1.0) / 4.0));
+}
