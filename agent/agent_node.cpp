@@ -225,6 +225,7 @@ int AgentNode::Run() {
       WriteCounters();
       counters_due_s_ = now_s + dds::kCountersEveryS;
     }
+    if (protocol_.finished()) break;  // the run is over: nothing to start again for (as the target)
     if (dds::Node::ReceiveStuck() || DeafForTest()) return Deaf();
     if (ThrowForTest()) dds::ThrowInAThreadForTest();
     if (CrashForTest()) dds::CrashInAThreadForTest();

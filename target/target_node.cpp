@@ -202,6 +202,10 @@ int TargetNode::Run() {
       WriteCounters();
       counters_due_s_ = now_s + dds::kCountersEveryS;
     }
+    // The run is over: nothing to start again for. The agents leave at its end, and a receive
+    // thread may then be caught on a message of one that left; the target started again in
+    // place for it, waited for agents that had finished, and ended with an error.
+    if (protocol_.finished()) break;
     if ((!protocol_.started() && DiscoveryStoppedShort(now_s)) || ForgottenByTheServer(now_s)) {
       WriteCounters();
       return protocol::kExitRuntimeError;  // the exit code if it cannot start again
@@ -304,6 +308,7 @@ bool TargetNode::ForgottenByTheServer(double now_s) {
 
 bool TargetNode::DeafForTest() const {
   static const StepIndex at_step = dds::FaultDeafStep("target");
+  if (at_step > config_.scenario.steps) return protocol_.finished();  // once the run is over
   return at_step > 0 && protocol_.current_step() >= at_step;
 }
 

@@ -553,6 +553,23 @@ def test_restart_in_place_everyone(work, domain, monkeypatch):
         assert last["fused"] == "4", f"agent {j}: {last}\n{log_excerpt(res.out_dir, j)}"
 
 
+def test_stuck_at_the_end(work, domain, monkeypatch):
+    """A process whose receive gets stuck once its run is over (the agents leave at the end,
+    and a receive thread can be caught on a message of one that left) ends as it would have:
+    it does not start again in place. Seen with 64 agents in real time on a starved host: the
+    target started again after "run over", waited for agents that had finished, and ended
+    with an error. DEIF_FAULT_DEAF makes the target deaf once the run is over (a step past the
+    last) and agent 2 from its last step."""
+    monkeypatch.setenv("DEIF_FAULT_DEAF", "61:target,60:2")
+    res = launch(work, domain, agents=4, steps=60, overrides=["network.start_timeout_s=5"])
+    assert res.ok, res.why_not_ok()
+    procs = {p["name"]: p for p in res.summary["processes"]}
+    for name in ("target", "agent_2"):
+        assert procs[name]["exit_status"] == 0 and procs[name]["restarts_in_place"] == 0, procs[name]
+    for j in range(1, 5):
+        assert steps_of(res.out_dir, j) == list(range(1, 61)), j
+
+
 def test_frozen_agent(work, domain):
     """Agent 2 frozen (SIGSTOP) at step 80 and resumed at 125: the others fuse three meanwhile,
     equal to the simulation; once back, agent 2 agrees with them bit for bit and the ring of
