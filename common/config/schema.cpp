@@ -460,7 +460,7 @@ void AddAgents(std::vector<KeySpec>* keys) {
   t.Add("control_law", [](Config& c) -> auto& { return c.agents.control_law; })
       .Default(ControlLawKind::kVoronoi)
       .Doc("midpoint (law 1, eq 3.2), voronoi (law 2, eq 3.6) or stationary (no motion); with "
-           "either law a lone agent circles its estimate (docs/ARCHITECTURE.md).");
+           "either law a lone agent stands still (docs/ARCHITECTURE.md).");
 }
 
 void AddNetwork(std::vector<KeySpec>* keys) {

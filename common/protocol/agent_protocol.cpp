@@ -837,8 +837,8 @@ void AgentProtocol::FinishStep(double now_s) {
     if (alone != alone_ && config_.agents.control_law != ControlLawKind::kStationary) {
       Log(alone ? LogLevel::kWarn : LogLevel::kInfo,
           alone ? "step " + std::to_string(r.step) +
-                      ": alone: one range fixes only the distance to the target; circling the "
-                      "estimate (docs/ARCHITECTURE.md, \"A lone agent\")"
+                      ": alone: one range fixes only the distance to the target; standing still "
+                      "(docs/ARCHITECTURE.md, \"A lone agent\")"
                 : "step " + std::to_string(r.step) + ": no longer alone; back to the ring");
     }
     alone_ = alone;

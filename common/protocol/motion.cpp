@@ -23,17 +23,15 @@ MotionResult MoveOnRing(const Config& config, AgentId self, const Vector2& p_est
   }
   MotionResult result;
   result.position_m = own_position;
-  if (config.agents.control_law != ControlLawKind::kStationary) {
+  // A lone agent (every other member lost) stands still. One range fixes only the distance
+  // to the target (one sensor's FIM is singular: det J = 0 in eq (2.6)), so its estimate can
+  // slide along that circle to the mirror side of the sensor; a sensor that keeps its place
+  // on the ring about that estimate follows it away, and one that circles it carries the
+  // error into the ring it rejoins (docs/ARCHITECTURE.md, "A lone agent").
+  const bool still = alone && ring.size() == 1;
+  if (config.agents.control_law != ControlLawKind::kStationary && !still) {
     // eq (3.2) / (3.6): the next angle; the goal lies on the circle about the estimate.
-    double next_angle_rad = NextAngle(config.agents.control_law, self, ring);
-    if (alone && ring.size() == 1) {
-      // A lone agent (every other member lost): one range fixes only the distance to the
-      // target (the FIM of one sensor is singular: det J = 0 in eq (2.6)), and the laws leave
-      // it where it is. It circles the estimate instead, covering the arc of one step at
-      // full speed, so that its ranges come from changing bearings (docs/ARCHITECTURE.md,
-      // "A lone agent").
-      next_angle_rad += config.agents.max_speed_mps * config.scenario.dt_s / config.agents.radius_m;
-    }
+    const double next_angle_rad = NextAngle(config.agents.control_law, self, ring);
     const Vector2 p_goal = PointOnCircle(p_estimate, config.agents.radius_m, next_angle_rad);
     result.position_m = MoveToward(own_position, p_goal,
                                    config.agents.max_speed_mps * config.scenario.dt_s);

@@ -22,8 +22,8 @@ double AngleAbout(const Vector2& centre, const Vector2& p);
 // about this agent's fused estimate p_estimate; the control law of config.agents (eq 3.2 or
 // 3.6) picks the next angle; the agent moves toward the point at that angle on the circle of
 // agents.radius_m about the estimate, at most max_speed_mps * dt_s. An agent `alone` (no
-// other member left) whose ring is itself circles the estimate counter-clockwise instead, by
-// the arc max_speed_mps * dt_s of that circle a step (docs/ARCHITECTURE.md, "A lone agent").
+// other member left) whose ring is itself stands still instead (docs/ARCHITECTURE.md, "A
+// lone agent").
 MotionResult MoveOnRing(const Config& config, AgentId self, const Vector2& p_estimate,
                         const Vector2& own_position,
                         const std::map<AgentId, Vector2>& member_positions, bool alone = false);

@@ -86,29 +86,22 @@ TEST_CASE("An agent missing from the member positions is placed at its own posit
   CHECK(without.ring_size == 3);
 }
 
-TEST_CASE("A lone agent circles the estimate by the arc of one step at full speed", "[motion]") {
-  // Alone at (2, 0) about the estimate (0, 0), radius 2, 1 m/s, dt 0.1 s: the arc of one
-  // step is 0.1 m, 0.05 rad of the circle; the chord to that point, 4 sin(0.025) = 0.09999 m,
-  // is within the step, so the agent lands on the circle at 0.05 rad.
+TEST_CASE("A lone agent stands still; one that is not alone follows the ring's law", "[motion]") {
+  // Alone at (2, 0), the estimate moved from the origin to (0.5, 0), 1 m/s, dt 0.1 s.
   const Config config = deif::ParseConfig(ThreeAgents("voronoi", 1.0), "inline");
-  const std::map<AgentId, Vector2> alone_at{{1, Vector2(2.0, 0.0)}};
-  const auto m = deif::MoveOnRing(config, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, /*alone=*/true);
-  CHECK(m.angle_rad == Approx(0.05));
-  CHECK(m.position_m.x() == Approx(2.0 * std::cos(0.05)));
-  CHECK(m.position_m.y() == Approx(2.0 * std::sin(0.05)));
-  CHECK(m.ring_size == 1);
-  // Law 1 circles the same way.
   const Config law1 = deif::ParseConfig(ThreeAgents("midpoint", 1.0), "inline");
-  CHECK(deif::MoveOnRing(law1, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, true).angle_rad ==
-        Approx(0.05));
-  // Not alone (a restarted agent that has not heard its peers yet): the thesis's laws, which
-  // leave a ring of one where it is.
-  CHECK(deif::MoveOnRing(config, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, false).position_m ==
-        Vector2(2.0, 0.0));
-  // The stationary law stays stationary, alone or not.
-  const Config still = deif::ParseConfig(ThreeAgents("stationary", 1.0), "inline");
-  CHECK(deif::MoveOnRing(still, 1, Vector2::Zero(), Vector2(2.0, 0.0), alone_at, true).position_m ==
-        Vector2(2.0, 0.0));
+  const std::map<AgentId, Vector2> alone_at{{1, Vector2(2.0, 0.0)}};
+  for (const Config* c : {&config, &law1}) {
+    const auto m = deif::MoveOnRing(*c, 1, Vector2(0.5, 0.0), Vector2(2.0, 0.0), alone_at, /*alone=*/true);
+    CHECK(m.position_m == Vector2(2.0, 0.0));
+    CHECK(m.angle_rad == Approx(0.0).margin(1e-12));
+    CHECK(m.ring_size == 1);
+  }
+  // Not alone (a restarted agent that has not heard its peers yet): the laws keep its angle
+  // (0) on the circle of 2 m about the new estimate, the goal (2.5, 0), 0.1 m of it a step.
+  const auto follows = deif::MoveOnRing(config, 1, Vector2(0.5, 0.0), Vector2(2.0, 0.0), alone_at, false);
+  CHECK(follows.position_m.x() == Approx(2.1));
+  CHECK(follows.position_m.y() == Approx(0.0).margin(1e-12));
   // Alone but with a ring of more (positions of members it still names): the ring's law.
   const Config fast = deif::ParseConfig(ThreeAgents("voronoi", 1000.0), "inline");
   const auto ringed = deif::MoveOnRing(fast, 2, Vector2::Zero(), Positions()[2], Positions(), true);
