@@ -386,8 +386,9 @@ void AddFilter(std::vector<KeySpec>* keys) {
       .Unit("sigma")
       .Doc("Innovation gate: an agent whose own range is further from its predicted range "
            "than this many standard deviations, sqrt(H P H^T + R) with the predicted P, sends "
-           "an empty contribution for that step (the range carries no information); 0: no "
-           "gate.");
+           "an empty contribution for that step (the range carries no information), up to 5 "
+           "steps in a row; from the 6th its ranges are fused until one passes (the estimate "
+           "is then what is wrong; docs/PROTOCOL.md); 0: no gate.");
 }
 
 void AddSensing(std::vector<KeySpec>* keys) {

@@ -940,15 +940,26 @@ void AgentProtocol::EmitOwnContribution(Record& r) {
     RowVector2 H;
     const double innovation = z.range_m - MeasureRange(p_pred, z.p_sensor, config_.sensing, &H);
     const double S = (H * prior.PositionCovariance() * H.transpose())(0, 0) + z.variance_m2;
-    if (innovation * innovation > gate_sigma_ * gate_sigma_ * S) {
+    const bool failed = innovation * innovation > gate_sigma_ * gate_sigma_ * S;
+    gated_in_a_row_ = failed ? gated_in_a_row_ + 1 : 0;
+    const std::string how_far = "step " + std::to_string(r.step) + ": the range " + std::to_string(z.range_m) +
+                                " m is " + std::to_string(std::abs(innovation) / std::sqrt(S)) +
+                                " sigma from the prediction (gate " + std::to_string(gate_sigma_) + ")";
+    if (failed && gated_in_a_row_ <= kGateRelentsAfter) {
       c.info_vector.setZero();
       c.info_matrix.setZero();
       ++counters_.by_reason["gated: own range failed the innovation gate"];
-      LogOnce(LogLevel::kWarn, "gate",
-              "step " + std::to_string(r.step) + ": the range " + std::to_string(z.range_m) +
-                  " m is " + std::to_string(std::abs(innovation) / std::sqrt(S)) +
-                  " sigma from the prediction (gate " + std::to_string(gate_sigma_) +
-                  "): sent as an empty contribution (logged once)");
+      LogOnce(LogLevel::kWarn, "gate", how_far + ": sent as an empty contribution (logged once)");
+    } else if (failed) {
+      // The estimate is what is wrong (a mirror image that the ranges of some peers fit, or a
+      // prior far off): without this, the gate would keep out the one range that disagrees
+      // with it for good.
+      ++counters_.by_reason["gate relented: own range fused after failing it " +
+                            std::to_string(kGateRelentsAfter) + " steps in a row"];
+      LogOnce(LogLevel::kWarn, "gate relents",
+              how_far + ", after " + std::to_string(kGateRelentsAfter) +
+                  " in a row that failed the gate: the estimate is taken for wrong, and the range is "
+                  "fused (logged once)");
     }
   }
   ContributionMsg msg;

@@ -45,6 +45,12 @@ inline constexpr int kExitRuntimeError = 1;
 inline constexpr int kExitBadConfig = 2;
 inline constexpr int kExitDuplicate = 3;  // an agent id (or the run's target) is already live
 
+// The innovation gate relents after this many of an agent's own ranges in a row failed it:
+// ranges that keep disagreeing with the prediction say that the estimate is wrong, not the
+// ranges, and the next ones are fused until one passes (docs/PROTOCOL.md, "The innovation
+// gate").
+inline constexpr int kGateRelentsAfter = 5;
+
 // What an agent counted, by reason (reported in summary.json).
 struct AgentCounters {
   std::int64_t rejected = 0;         // invalid, hostile or foreign messages
@@ -348,7 +354,8 @@ class AgentProtocol {
   // Motion.
   Vector2 position_m_;
   double angle_rad_;
-  bool alone_ = false;  // the last move was a lone agent's circling (docs/ARCHITECTURE.md)
+  bool alone_ = false;        // alone at the last move (docs/ARCHITECTURE.md, "A lone agent")
+  int gated_in_a_row_ = 0;    // own ranges that failed the innovation gate in a row
   std::vector<Vector2> published_positions_;  // recent positions, for stale-range detection
 
   // Peers and the target.

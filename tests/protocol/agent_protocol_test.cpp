@@ -400,6 +400,35 @@ TEST_CASE("A range far from the prediction fails the innovation gate and carries
   CHECK((net.rows.at(1)[3].estimate_m - net.truth[3].p_true).norm() < 0.5);
 }
 
+TEST_CASE("The innovation gate relents after five of an agent's own ranges in a row failed it",
+          "[protocol][validation]") {
+  ScriptedNetwork net(kThreeAgents);
+  net.Start();
+  net.RunUntil(3);
+  // GIVEN agent 2's ranges of steps 4 to 10 are each 50 m long (the estimate says about 2 m)
+  for (StepIndex k = 4; k <= 10; ++k) {
+    net.Pump([k](const Envelope& e) {
+      const auto* r = std::get_if<protocol::RangeMsg>(&e.message);
+      return r != nullptr && r->agent_id == 2 && r->step == k;
+    });
+    REQUIRE(net.held.size() == 1);
+    std::get<protocol::RangeMsg>(net.held.front().message).range_m = 50.0;
+    net.ReleaseHeld();
+    net.RunUntil(k);
+  }
+  // THEN its contributions of steps 4 to 8 are empty, those of 9 and 10 carry the range
+  for (StepIndex k = 4; k <= 8; ++k) {
+    INFO("step " << k);
+    CHECK(ValidContributionFrom(net, 2, k).info_matrix.isZero(0.0));
+  }
+  for (StepIndex k = 9; k <= 10; ++k) {
+    INFO("step " << k);
+    CHECK_FALSE(ValidContributionFrom(net, 2, k).info_matrix.isZero(0.0));
+  }
+  CHECK(net.agents.at(2)->counters().by_reason.at("gated: own range failed the innovation gate") == 5);
+  for (StepIndex k = 4; k <= 10; ++k) CHECK(AllAgreeAt(net, k));  // the owner decides: all fuse the same
+}
+
 TEST_CASE("A member that dies after its contribution reached only some peers leads to one merge "
           "at the next step, long before the step leaves the history",
           "[protocol]") {
