@@ -942,14 +942,16 @@ void AgentProtocol::EmitOwnContribution(Record& r) {
     const double S = (H * prior.PositionCovariance() * H.transpose())(0, 0) + z.variance_m2;
     const bool failed = innovation * innovation > gate_sigma_ * gate_sigma_ * S;
     gated_in_a_row_ = failed ? gated_in_a_row_ + 1 : 0;
-    const std::string how_far = "step " + std::to_string(r.step) + ": the range " + std::to_string(z.range_m) +
-                                " m is " + std::to_string(std::abs(innovation) / std::sqrt(S)) +
-                                " sigma from the prediction (gate " + std::to_string(gate_sigma_) + ")";
+    const auto how_far = [&] {  // only for a range that failed: a string a step costs
+      return "step " + std::to_string(r.step) + ": the range " + std::to_string(z.range_m) + " m is " +
+             std::to_string(std::abs(innovation) / std::sqrt(S)) + " sigma from the prediction (gate " +
+             std::to_string(gate_sigma_) + ")";
+    };
     if (failed && gated_in_a_row_ <= kGateRelentsAfter) {
       c.info_vector.setZero();
       c.info_matrix.setZero();
       ++counters_.by_reason["gated: own range failed the innovation gate"];
-      LogOnce(LogLevel::kWarn, "gate", how_far + ": sent as an empty contribution (logged once)");
+      LogOnce(LogLevel::kWarn, "gate", how_far() + ": sent as an empty contribution (logged once)");
     } else if (failed) {
       // The estimate is what is wrong (a mirror image that the ranges of some peers fit, or a
       // prior far off): without this, the gate would keep out the one range that disagrees
@@ -957,7 +959,7 @@ void AgentProtocol::EmitOwnContribution(Record& r) {
       ++counters_.by_reason["gate relented: own range fused after failing it " +
                             std::to_string(kGateRelentsAfter) + " steps in a row"];
       LogOnce(LogLevel::kWarn, "gate relents",
-              how_far + ", after " + std::to_string(kGateRelentsAfter) +
+              how_far() + ", after " + std::to_string(kGateRelentsAfter) +
                   " in a row that failed the gate: the estimate is taken for wrong, and the range is "
                   "fused (logged once)");
     }
