@@ -460,6 +460,8 @@ void AgentNode::Dispatch(const dds::Event& event, double now_s) {
     } else if (change->topic == dds::Topic::kRelayDown && tree_) {
       if (auto parent = parent_writers_.find(change->writer); parent != parent_writers_.end()) {
         tree_->OnParentLiveliness(parent->second, change->alive, now_s);
+      } else if (auto silent = silent_writers_.find(change->writer); silent != silent_writers_.end()) {
+        tree_->OnParentLiveliness(silent->second, change->alive, now_s);
       }
     }
   }
@@ -500,12 +502,27 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
     } else if (auto* deliver = std::get_if<act::Deliver>(&action)) {
       deliveries.emplace_back(std::move(deliver->item.msg), deliver->item.origin);  // after the sends
     } else if (const auto* reparent = std::get_if<act::Reparent>(&action)) {
-      PlaceRelays(reparent->parent, /*move=*/true);
+      // A parent left for its silence is still watched where it was: its relay writer's
+      // return brings it back at once (docs/SCALING.md, "A parent heard again").
+      bool watch = false;
+      if (reparent->silent) {
+        for (const auto& [writer, parent] : parent_writers_) {
+          if (parent != *reparent->silent || silent_writers_.size() >= kMaxParentWriters) continue;
+          silent_writers_.emplace(writer, parent);
+          watch = true;
+        }
+      }
+      PlaceRelays(reparent->parent, /*move=*/true, watch);
       parent_writers_.clear();  // the new parent's first batch names its writer
       if (reparent->silent) {
         context_.log->warn("tree exchange: parent now {} ({} members): agent {} fell silent (relay lease {} s)",
                            ParentName(reparent->parent), tree_->members().size(), *reparent->silent,
                            EffectiveRelayLeaseS(config_));
+      } else if (reparent->parent && std::any_of(silent_writers_.begin(), silent_writers_.end(), [&](const auto& e) {
+                   return e.second == *reparent->parent;
+                 })) {
+        context_.log->info("tree exchange: parent now {} ({} members): back after it fell silent ({} heard again so far)",
+                           ParentName(reparent->parent), tree_->members().size(), tree_->parents_heard_again());
       } else {
         context_.log->info("tree exchange: parent now {} ({} members)", ParentName(reparent->parent),
                            tree_->members().size());
@@ -529,25 +546,38 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
   if (!deliveries.empty()) protocol_.OnContributions(deliveries, dds::ToSeconds(dds::Clock::now()));
 }
 
+void AgentNode::DropWatchesOnReturn() {
+  if (silent_writers_.empty()) return;
+  const std::set<AgentId> silent = tree_->silent_parents();
+  for (auto it = silent_writers_.begin(); it != silent_writers_.end();) {
+    it = silent.count(it->second) > 0 ? std::next(it) : silent_writers_.erase(it);
+  }
+  // Each watch is a reader the parent's writer sends every batch to.
+  if (silent_writers_.empty()) node_.DropWatches(dds::Topic::kRelayDown);
+}
+
 void AgentNode::Pump() {
   for (;;) {
     std::vector<protocol::AgentAction> actions = protocol_.TakeActions();
     std::vector<protocol::TreeAction> relay;
     if (tree_) relay = tree_->TakeActions();
-    if (actions.empty() && relay.empty()) return;
+    if (actions.empty() && relay.empty()) {
+      if (tree_) DropWatchesOnReturn();
+      return;
+    }
     Execute(std::move(actions));
     ExecuteRelay(std::move(relay));
   }
 }
 
-void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move) {
+void AgentNode::PlaceRelays(std::optional<AgentId> parent, bool move, bool keep_watch) {
   // Writer up and reader down in the parent's partitions (none: the root's go nowhere);
   // reader up and writer down in this agent's own.
   const std::string p = parent ? std::to_string(*parent) : "none";
   const std::string self = std::to_string(id_);
   if (move) {
     node_.MoveSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
-    node_.MoveSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);
+    node_.MoveSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p, keep_watch);
   } else {
     node_.SetSubPartitions(dds::Topic::kRelayUp, "up." + p, "up." + self);
     node_.SetSubPartitions(dds::Topic::kRelayDown, "down." + self, "down." + p);

@@ -50,7 +50,9 @@ class AgentNode : public dds::Application {
   std::set<AgentId> TreeMembers() const;
   // Puts the relay endpoints in the partitions of a tree place with `parent`: before they
   // exist (move false), or moving them (true).
-  void PlaceRelays(std::optional<AgentId> parent, bool move);
+  void PlaceRelays(std::optional<AgentId> parent, bool move, bool keep_watch = false);
+  // Drops the watches on parents that are no longer silent (all of them once none is).
+  void DropWatchesOnReturn();
   static std::string ParentName(std::optional<AgentId> parent);
   // How long a gap between two wake-ups of the loop means this process was away.
   double AwayAfterS() const;
@@ -109,6 +111,9 @@ class AgentNode : public dds::Application {
   // Relay writers to this agent (deif/relay_down) -> the parent whose batches they carried:
   // their liveliness is the parent's (TreeExchange::OnParentLiveliness).
   std::map<protocol::SenderKey, AgentId> parent_writers_;
+  // The same of the parents it left because they fell silent, heard on the watches its
+  // reader left in their partitions (docs/SCALING.md, "A parent heard again").
+  std::map<protocol::SenderKey, AgentId> silent_writers_;
   double last_loop_s_ = -1.0;  // when the loop last woke
   std::optional<AgentCsv> csv_;
   dds::DeliveryDelays delivery_;  // docs/ARTEFACTS.md, "Delivery delays"

@@ -928,6 +928,9 @@ struct Node::Impl {
   std::vector<std::pair<Topic, fdds::DataWriter*>> every_writer;  // the range writers included
   std::map<Topic, fdds::DataReader*> readers;
   std::map<Topic, std::unique_ptr<LivelinessListener>> listeners;
+  // Readers MoveSubPartitions left where they were, each in its own subscriber: they report
+  // the liveliness of what they match (through the topic's listener) and hand out nothing.
+  std::multimap<Topic, fdds::DataReader*> watches;
   // Samples taken from a reader that MoveSubPartitions replaced, handed out by the next Wait().
   std::vector<Event> stashed;
   // Readers that handed out one sample twice in a row (TakeAll), made anew by Wait(), and
@@ -1250,7 +1253,8 @@ void ReplaceWriter(Node::Impl& d, Topic topic, const std::function<void(fdds::Pu
 
 }  // namespace
 
-void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix) {
+void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix,
+                             bool keep_watch) {
   Impl& d = *impl_;
   if (d.writer_sub_partitions.count(topic) == 0) {
     throw std::logic_error(std::string("no sub-partitions to move on ") + NamesOf(topic).name);
@@ -1294,8 +1298,42 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
   // steps after the network healed (docs/FASTDDS_NOTES.md, "A reader moved and moved back").
   // A new reader is a reader the writer has never seen. What the old one held is kept.
   TakeTopic(d, topic, d.stashed);
-  ReplaceReader(d, topic, [&](fdds::Subscriber* s) { moved(reader_suffix, s, "subscriber"); });
+  if (!keep_watch) {
+    ReplaceReader(d, topic, [&](fdds::Subscriber* s) { moved(reader_suffix, s, "subscriber"); });
+    return;
+  }
+  // The old reader stays in its subscriber and partition, out of the wait set: samples it
+  // receives fill its history (history_steps deep) and are never taken. The new one gets a
+  // subscriber of its own in the new partition.
+  fdds::DataReader* old = r->second;
+  d.waitset.detach_condition(old->get_statuscondition());
+  old->get_statuscondition().set_enabled_statuses(fdds::StatusMask::none());
+  d.readers.erase(topic);
+  d.watches.emplace(topic, old);
+  fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
+  const std::string partition = "deif." + d.run_name + "." + reader_suffix;
+  qos.partition().push_back(partition.c_str());
+  fdds::Subscriber* fresh = d.participant->create_subscriber(qos);
+  if (fresh == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+  MakeReader(d, topic, fresh, const_cast<fdds::TopicDescription*>(old->get_topicdescription()), old->get_qos(),
+             d.listeners.at(topic).get());
 }
+
+void Node::DropWatches(Topic topic) {
+  Impl& d = *impl_;
+  const auto range = d.watches.equal_range(topic);
+  for (auto it = range.first; it != range.second; ++it) {
+    fdds::DataReader* watch = it->second;
+    auto* subscriber = const_cast<fdds::Subscriber*>(watch->get_subscriber());
+    if (subscriber->delete_datareader(watch) != ReturnCode_t::RETCODE_OK ||
+        d.participant->delete_subscriber(subscriber) != ReturnCode_t::RETCODE_OK) {
+      throw std::runtime_error(std::string("cannot delete a watch on ") + NamesOf(topic).name);
+    }
+  }
+  d.watches.erase(range.first, range.second);
+}
+
+int Node::Watches(Topic topic) const { return static_cast<int>(impl_->watches.count(topic)); }
 
 void Node::RemakeReader(Topic topic) {
   Impl& d = *impl_;
@@ -1366,6 +1404,7 @@ void Node::AddReader(const ReaderSpec& spec) {
 
 void Node::RemoveReader(Topic topic) {
   Impl& d = *impl_;
+  DropWatches(topic);  // they call the listener erased below
   auto it = d.readers.find(topic);
   if (it == d.readers.end()) return;
   fdds::DataReader* reader = it->second;

@@ -90,8 +90,17 @@ class Node {
   // reader moved and moved back"): the new writer has no history (WriterKey changes), and
   // the samples the old reader held come out of the next Wait(). A writer with liveliness
   // assertions is moved, not made anew.
+  // With keep_watch, the old reader is not deleted: it stays where it was as a watch, which
+  // hands out no sample (what it receives is dropped) and reports only the liveliness of the
+  // writers it matches, as LivelinessChange events of `topic` (a parent of the tree exchange
+  // that fell silent is heard again there: docs/SCALING.md, "A parent heard again").
   // From the thread that calls Wait(), never during it.
-  void MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix);
+  void MoveSubPartitions(Topic topic, const std::string& writer_suffix, const std::string& reader_suffix,
+                         bool keep_watch = false);
+  // Deletes every watch MoveSubPartitions kept of `topic`.
+  void DropWatches(Topic topic);
+  // How many watches of `topic` there are.
+  int Watches(Topic topic) const;
   // Deletes this node's reader of `topic` and makes it anew in the same partitions, with the
   // same QoS and listener: a reader no writer has a record of, announced afresh (a child of
   // the tree exchange that hears nothing from its parent, docs/SCALING.md). What the old

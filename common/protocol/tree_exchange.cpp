@@ -123,7 +123,22 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
 
 void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
   if (!alive && place_.parent != id) return;  // only its parent's lapses (a return ends any)
+  const long undone = parent_lapses_.losses_undone();
   const std::optional<bool> change = parent_lapses_.Report(id, alive, now_s);
+  if (alive && silent_.count(id) > 0 && given_.count(id) > 0) {
+    // A parent left for its silence is heard again, and the members still have it: it only
+    // stalled (a process frozen or starved, renewals lost). It comes back into the tree at
+    // once rather than at the end of its hold: meanwhile it took itself for what it was and
+    // every agent missed its contribution (docs/SCALING.md, "A parent heard again"). The
+    // loss counts as undone, so its next lapses are held longer.
+    if (parent_lapses_.losses_undone() == undone) parent_lapses_.NoteUndone(now_s);
+    silent_.erase(id);
+    ++parents_heard_again_;
+    NoteGraceGrown(id);
+    Rebuild(now_s);
+    CheckSilence(now_s);
+    return;
+  }
   NoteGraceGrown(id);
   if (change && !*change) LeaveSilent(id, now_s);  // no grace
   CheckSilence(now_s);
@@ -526,6 +541,12 @@ std::vector<TreeAction> TreeExchange::TakeActions() {
   FlushForwarded();
   std::vector<TreeAction> out;
   out.swap(actions_);
+  return out;
+}
+
+std::set<AgentId> TreeExchange::silent_parents() const {
+  std::set<AgentId> out;
+  for (const auto& entry : silent_) out.insert(entry.first);
   return out;
 }
 

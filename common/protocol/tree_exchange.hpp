@@ -125,7 +125,15 @@ class TreeExchange {
   // more, this agent moves under the next member up at once and leaves the parent out of its
   // tree for silent_hold_s: every agent's membership loses a dead agent only after the
   // lease of every agent's writers, which grows with N (docs/SCALING.md, "Losing a relay").
+  // A return of a parent it left so, while the members still have it, brings the parent
+  // back into its tree at once.
   void OnParentLiveliness(AgentId id, bool alive, double now_s);
+  // A parent it left for its silence stays out of its tree for silent_hold_s, or until
+  // OnParentLiveliness(parent, true): the caller keeps listening to the liveliness of the
+  // relay writers of these parents (docs/SCALING.md, "A parent heard again").
+  std::set<AgentId> silent_parents() const;
+  // Silent parents that came back into the tree because they were heard again.
+  long parents_heard_again() const { return parents_heard_again_; }
   // This agent itself was away (frozen or starved) until now: a lapse of its parent's relay
   // writer within hold_s from now counts only if it lasts until then (as
   // AgentProtocol::OnAway).
@@ -229,6 +237,7 @@ class TreeExchange {
   std::set<AgentId> given_;    // the members as last set (SetMembers)
   std::set<AgentId> members_;  // those of the tree: given_ less the silent parents
   std::map<AgentId, double> silent_;  // a parent that fell silent -> when it may come back
+  long parents_heard_again_ = 0;
   BasicLapseFilter<AgentId> parent_lapses_;  // the parent's relay writer's lapses, held for the grace
   std::vector<AgentId> sorted_;
   TreePlace place_;

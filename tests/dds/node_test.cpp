@@ -209,6 +209,86 @@ TEST_CASE("a reader moved to another sub-partition matches its new writer and ke
   CHECK(got == std::vector<std::pair<deif::AgentId, deif::StepIndex>>{{1, 7}, {2, 8}});
 }
 
+TEST_CASE("a reader moved with a watch: the watch hears the old partition's writers' liveliness and hands "
+          "out nothing",
+          "[dds][node]") {
+  const deif::Config config = deif::ParseConfig(
+      "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
+  // A child of the tree exchange leaving a parent that fell silent (docs/SCALING.md, "A
+  // parent heard again"): its reader of a's partition stays as a watch.
+  deif::dds::Node parent_a(config, "node-test-watch-a", "node_watch");
+  deif::dds::Node parent_b(config, "node-test-watch-b", "node_watch");
+  deif::dds::Node child(config, "node-test-watch-child", "node_watch");
+  parent_a.SetSubPartitions(Topic::kRelayDown, "down.a", "unused");
+  parent_a.AddWriter(Topic::kRelayDown);
+  parent_b.SetSubPartitions(Topic::kRelayDown, "down.b", "unused");
+  parent_b.AddWriter(Topic::kRelayDown);
+  child.SetSubPartitions(Topic::kRelayDown, "unused", "down.a");
+  child.AddReader({Topic::kRelayDown, {}});
+  parent_a.StartLiveliness();
+  parent_b.StartLiveliness();
+  REQUIRE(Within(10.0, child, [&] { return parent_a.MatchedReaders(Topic::kRelayDown) == 1; }));
+  CHECK(child.Watches(Topic::kRelayDown) == 0);
+
+  child.MoveSubPartitions(Topic::kRelayDown, "unused", "down.b", /*keep_watch=*/true);
+  CHECK(child.Watches(Topic::kRelayDown) == 1);
+  REQUIRE(Within(10.0, child, [&] { return parent_b.MatchedReaders(Topic::kRelayDown) == 1; }));
+  // The reader's side of the match may come a moment after the writer's: b's writer only.
+  CHECK(Within(10.0, child, [&] { return child.MatchedWriters(Topic::kRelayDown) == 1; }));
+  // a's writer still matches the watch, and what it writes comes out nowhere.
+  Within(1.0, child, [] { return false; });
+  CHECK(parent_a.MatchedReaders(Topic::kRelayDown) == 1);
+  deif::protocol::BatchMsg batch;
+  batch.run = deif::protocol::RunTokenOf("node_watch");
+  batch.sender_id = 1;
+  batch.step = 7;
+  batch.down = true;
+  parent_a.Write(batch);
+  REQUIRE(parent_a.WaitForAcknowledgments(10.0));  // it reached the watch
+  batch.sender_id = 2;
+  batch.step = 8;
+  parent_b.Write(batch);
+  std::vector<deif::AgentId> senders;
+  std::vector<deif::dds::LivelinessChange> changes;
+  const auto note = [&](const std::vector<deif::dds::Event>& events) {
+    for (const auto& event : events) {
+      if (const auto* r = std::get_if<deif::dds::Received<deif::protocol::BatchMsg>>(&event)) {
+        senders.push_back(r->msg.sender_id);
+      } else if (const auto* l = std::get_if<deif::dds::LivelinessChange>(&event)) {
+        changes.push_back(*l);
+      }
+    }
+  };
+  REQUIRE(Within(10.0, parent_b, [&] {
+    note(child.Wait(Clock::now() + std::chrono::milliseconds(20)));
+    return !senders.empty();
+  }));
+  note(child.Wait(Clock::now() + std::chrono::milliseconds(300)));
+  CHECK(senders == std::vector<deif::AgentId>{2});
+
+  // A writer that comes alive in a's partition is heard on the watch.
+  deif::dds::Node parent_a2(config, "node-test-watch-a2", "node_watch");
+  parent_a2.SetSubPartitions(Topic::kRelayDown, "down.a", "unused");
+  parent_a2.AddWriter(Topic::kRelayDown);
+  parent_a2.StartLiveliness();
+  const deif::protocol::SenderKey a2 = parent_a2.WriterKey(Topic::kRelayDown);
+  CHECK(Within(10.0, parent_a2, [&] {  // the child's events are taken by `note` alone
+    note(child.Wait(Clock::now() + std::chrono::milliseconds(20)));
+    return std::any_of(changes.begin(), changes.end(), [&](const deif::dds::LivelinessChange& c) {
+      return c.topic == Topic::kRelayDown && c.writer == a2 && c.alive;
+    });
+  }));
+  CHECK(senders == std::vector<deif::AgentId>{2});
+
+  // Dropped, the watch is no longer matched.
+  child.DropWatches(Topic::kRelayDown);
+  CHECK(child.Watches(Topic::kRelayDown) == 0);
+  CHECK(Within(10.0, child, [&] {
+    return parent_a.MatchedReaders(Topic::kRelayDown) == 0 && parent_a2.MatchedReaders(Topic::kRelayDown) == 0;
+  }));
+  CHECK(parent_b.MatchedReaders(Topic::kRelayDown) == 1);
+}
+
 TEST_CASE("a writer moved to another sub-partition is a new writer, matched there only", "[dds][node]") {
   const deif::Config config = deif::ParseConfig(
       "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");

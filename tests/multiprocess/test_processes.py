@@ -1173,6 +1173,38 @@ def test_tree_silent_relay_left_at_once(work, domain):
         assert relay_log_lines(res.out_dir, j) == [], relay_log_lines(res.out_dir, j)
 
 
+def test_tree_frozen_root_heard_again(work, domain):
+    """N=7 over the tree in real time (10 Hz), with the lease of every agent's writers long
+    (3 s, as at large N) and the relay writer's short (0.4 s): the root frozen (SIGSTOP) for
+    2 s from step 40. Its children 2 and 3 leave it once its relay writer has been silent for
+    the relay lease plus the grace. The members keep it (a 2 s silence is inside their
+    lease), so the root resumes as the root; its children hear its relay writer again on the
+    reader they left in its partition and move back under it at once (docs/SCALING.md, "A
+    parent heard again"), not after their hold of 2 x (lease + grace), about 7 s, during which
+    every agent would miss the root's contribution at every step. So from 20 steps after the
+    resume every agent fuses all seven by the deadline (one short step allowed, as a loaded
+    host may deliver one batch late), and from 30 steps after it they agree bit for bit."""
+    faults = [launcher.Fault(40, "stop", 1), launcher.Fault(60, "cont", 1)]
+    res = launch(work, domain, agents=7, steps=120, faults=faults,
+                 overrides=TREE + ["scenario.mode=realtime", "scenario.period_s=0.1",
+                                   "network.liveliness_lease_s=3.0", "network.relay_lease_s=0.4"])
+    assert res.ok, res.why_not_ok()
+    for p in res.summary["processes"]:
+        assert p["restarts_in_place"] == 0, p
+    for j in (2, 3):
+        moves = relay_log_lines(res.out_dir, j)
+        assert len(moves) == 2, moves
+        assert "agent 1 fell silent" in moves[0] and "back after it fell silent" in moves[1], moves
+    last = {j: {int(r["step"]): r for r in rows(res.out_dir, j)} for j in range(1, 8)}
+    for j in range(1, 8):
+        short = [k for k in range(80, 121) if int(last[j][k]["fused"]) < 7]
+        assert len(short) <= 1, f"agent {j}: steps without every agent's contribution: {short}"
+    for k in range(90, 121):
+        ref = last[1][k]
+        for j in range(2, 8):
+            assert last[j][k]["x_est"] == ref["x_est"] and last[j][k]["p_xx"] == ref["p_xx"], (j, k)
+
+
 def test_tree_frozen_relay(work, domain):
     """N=7 over the tree in real time (10 Hz): relay 2 frozen (SIGSTOP) for 3 s from step 40.
     Its subtree and the rest go on without it; once it resumes, every contribution it and

@@ -741,6 +741,58 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   CHECK(grown.size() == 1);  // nothing undone since
 }
 
+TEST_CASE("A silent parent heard again comes back at once while the members have it; a dead one "
+          "stays out for the hold",
+          "[protocol][tree]") {
+  const deif::Config config = ConfigFor(13, 3);
+  const double grace = config.network.liveliness_grace_s;
+  const double hold = 10.0;
+  TreeExchange child(config, TreeExchange::Options{5, kRun, WriterOf(5), hold});
+  const std::set<AgentId> all{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13};
+  child.SetMembers(all, 0.0);
+  child.TakeActions();
+  REQUIRE(child.place().parent == AgentId{2});
+  const auto moves = [&child] {
+    std::vector<std::pair<AgentId, AgentId>> out;  // (new parent or 0, silent parent or 0)
+    for (const auto& a : child.TakeActions()) {
+      if (const auto* r = std::get_if<protocol::tree_action::Reparent>(&a)) {
+        out.emplace_back(r->parent.value_or(0), r->silent.value_or(0));
+      }
+    }
+    return out;
+  };
+  // Parent 2 frozen: its relay writer lapses, the child leaves it for 1.
+  child.OnParentLiveliness(2, false, 1.0);
+  child.OnTimer(1.0 + grace);
+  CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{1, 2}});
+  CHECK(child.silent_parents() == std::set<AgentId>{2});
+  // It resumes 2 s later, long before the hold is over: the child is back under it at once.
+  child.OnParentLiveliness(2, true, 3.0);
+  CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{2, 0}});
+  CHECK(child.place().parent == AgentId{2});
+  CHECK(child.silent_parents().empty());
+  CHECK(child.parents_heard_again() == 1);
+  CHECK(child.parent_losses_undone() == 1);  // its next lapse is held twice as long
+  // Another relay's writer coming alive moves nobody.
+  child.OnParentLiveliness(3, true, 3.5);
+  CHECK(moves().empty());
+  // Parent 2 lapses again for longer than the doubled grace: left again.
+  child.OnParentLiveliness(2, false, 4.0);
+  child.OnTimer(4.0 + 2.0 * grace);
+  CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{1, 2}});
+  // The members lose it (it died): its writer is never heard again, and even a report of it
+  // alive (a copy of an old announcement) after the members lost it brings nothing back.
+  std::set<AgentId> without_2 = all;
+  without_2.erase(2);
+  child.SetMembers(without_2, 6.0);
+  CHECK(moves().empty());  // already out of its tree
+  child.OnParentLiveliness(2, true, 6.5);
+  child.OnTimer(4.0 + 2.0 * grace + hold + 1.0);
+  CHECK(moves().empty());
+  CHECK(child.place().parent == AgentId{1});
+  CHECK(child.parents_heard_again() == 1);
+}
+
 TEST_CASE("After this agent was away, its parent's lapse counts only once it outlasts the hold",
           "[protocol][tree]") {
   const deif::Config config = ConfigFor(13, 3);
