@@ -190,6 +190,11 @@ int AgentNode::Run() {
       protocol_.OnAway(now_s, hold_s);
       if (tree_) tree_->OnAway(now_s, hold_s);
     }
+    if (now_s - dds::ToSeconds(wake_by) > config_.scenario.period_s) {
+      // It overslept its wake-up by a period or more: the steps it slept through wait a
+      // moment for what its sockets hold (AgentProtocol::OnResumed).
+      protocol_.OnResumed(now_s);
+    }
     last_loop_s_ = now_s;
     // From the first step on: before it, what arrives comes from the DDS histories of
     // writers just matched, and its delay is the wait for the start (docs/ARTEFACTS.md).

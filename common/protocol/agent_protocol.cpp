@@ -527,10 +527,10 @@ std::optional<double> AgentProtocol::NextDeadline() const {
   double t = last_target_contact_s_ + Patience();
   if (target_silent_logged_ || WaitingForTarget()) t = std::numeric_limits<double>::infinity();
   if (open_) {
-    t = std::min(t, records_.rbegin()->second.deadline_s);
+    t = std::min(t, std::max(records_.rbegin()->second.deadline_s, resumed_until_s_));
   } else if (RealTime() && clock_sync_) {
-    t = std::min(t, ExpectedStart(written_ + 1) +
-                        config_.network.deadline_fraction * config_.scenario.period_s);
+    t = std::min(t, std::max(ExpectedStart(written_ + 1) + config_.network.deadline_fraction * config_.scenario.period_s,
+                             resumed_until_s_));
   }
   if (const std::optional<double> lapse = lapses_.NextDue()) t = std::min(t, *lapse);
   if (!std::isfinite(t)) return std::nullopt;
@@ -625,7 +625,7 @@ void AgentProtocol::Advance(double now_s) {
       const double start_s = ExpectedStart(next);
       const double deadline_s =
           start_s + config_.network.deadline_fraction * config_.scenario.period_s;
-      if (now_s >= deadline_s) {
+      if (now_s >= deadline_s && now_s >= resumed_until_s_) {
         // Real time: the step's range has not come by its deadline (lost, late, or the
         // target is cut off): the step runs on the clock, and a range that comes later is
         // fused late.
@@ -726,8 +726,15 @@ bool AgentProtocol::MissesALostMember(const Record& r) const {
   return false;
 }
 
+double AgentProtocol::OnResumed(double now_s) {
+  if (!RealTime()) return 0.0;
+  const double hold_s = kResumeShare * config_.network.deadline_fraction * config_.scenario.period_s;
+  resumed_until_s_ = std::max(resumed_until_s_, now_s + hold_s);
+  return hold_s;
+}
+
 bool AgentProtocol::CanFinish(const Record& r, double now_s) const {
-  if (IsComplete(r) || now_s >= r.deadline_s) return true;
+  if (IsComplete(r) || (now_s >= r.deadline_s && now_s >= resumed_until_s_)) return true;
   if (RealTime() || r.awaiting_basis) return false;
   if (!r.roll_call) return true;  // lock-step without a range: nobody to wait for
   // Lock-step: wait for every roll-call member, except one seen lost since the step began

@@ -785,6 +785,44 @@ TEST_CASE("In real time a step is written at its deadline with what arrived, and
   CHECK(AllAgreeAt(net, 3));
 }
 
+TEST_CASE("In real time an agent that resumes writes the steps it slept through with what its sockets held, "
+          "not on the clock before reading them",
+          "[protocol]") {
+  ScriptedNetwork net(kThreeAgentsRealTime);
+  net.Start();
+  net.Pump();
+  REQUIRE(net.agents.at(3)->last_written_step() == 1);
+  // GIVEN agent 3 frozen while the target publishes steps 2..5 (its messages wait in its
+  // sockets)
+  const auto frozen = net.Freeze(3);
+  for (int k = 2; k <= 5; ++k) {
+    net.AdvanceTime(0.1);
+    net.Pump(frozen);
+  }
+  // WHEN it runs again, its loop wakes before its readers hold the backlog (the transport's
+  // threads deliver it a moment later): the loop came back long after its wake-up
+  net.frozen.erase(3);
+  const double hold_s = net.agents.at(3)->OnResumed(net.now);
+  CHECK(hold_s == Approx(0.05));  // deadline_fraction x period_s
+  net.agents.at(3)->OnTimer(net.now);
+  // THEN it writes nothing on the clock yet
+  CHECK(net.agents.at(3)->last_written_step() == 1);
+  // AND once the backlog is read, the steps it slept through are written with it
+  net.ReleaseHeld();
+  net.Pump();
+  net.AdvanceTime(hold_s + 0.001);
+  net.Pump();
+  CHECK(net.agents.at(3)->last_written_step() >= 5);
+  for (const auto& row : net.rows.at(3)) {
+    INFO("step " << row.step);
+    if (row.step >= 2 && row.step <= 5) CHECK(row.fused >= 2);
+  }
+  // AND in lock-step there is nothing to hold: a step waits for its members anyway
+  ScriptedNetwork lock_step(kThreeAgents);
+  lock_step.Start();
+  CHECK(lock_step.agents.at(1)->OnResumed(lock_step.now) == 0.0);
+}
+
 TEST_CASE("In real time an agent whose ranges come after their deadline follows the target's "
           "clock instead of missing every step",
           "[protocol]") {
