@@ -16,7 +16,8 @@ namespace deif::agent {
 
 namespace {
 
-constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
+constexpr double kMaxWaitS = 0.5;
+constexpr double kResumedAfterPeriods = 3.0;  // a loop back this many periods late was away (OnResumed)  // the loop wakes at least this often (stop requests)
 // How often it looks at every peer's process (docs/PROTOCOL.md, "A process that ended"): to
 // see each alive once; and at those the target's roll call left out (the target looks
 // often, for everyone).
@@ -190,9 +191,11 @@ int AgentNode::Run() {
       protocol_.OnAway(now_s, hold_s);
       if (tree_) tree_->OnAway(now_s, hold_s);
     }
-    if (now_s - dds::ToSeconds(wake_by) > config_.scenario.period_s) {
-      // It overslept its wake-up by a period or more: the steps it slept through wait a
-      // moment for what its sockets hold (AgentProtocol::OnResumed).
+    if (now_s - dds::ToSeconds(wake_by) > kResumedAfterPeriods * config_.scenario.period_s) {
+      // It overslept its wake-up by several periods (frozen, or starved for long): the steps
+      // it slept through wait a moment for what its sockets hold (AgentProtocol::OnResumed).
+      // Not after a shorter delay, which a loaded host gives now and then: the hold delays
+      // its next contribution too.
       protocol_.OnResumed(now_s);
     }
     last_loop_s_ = now_s;

@@ -1306,6 +1306,9 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
   // receives fill its history (history_steps deep) and are never taken. The new one gets a
   // subscriber of its own in the new partition.
   fdds::DataReader* old = r->second;
+  if (subscriber == d.subscriber) {  // DropWatches deletes a watch's subscriber with it
+    throw std::logic_error(std::string("a watch needs a reader in a subscriber of its own on ") + NamesOf(topic).name);
+  }
   d.waitset.detach_condition(old->get_statuscondition());
   old->get_statuscondition().set_enabled_statuses(fdds::StatusMask::none());
   d.readers.erase(topic);

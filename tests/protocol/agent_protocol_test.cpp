@@ -803,7 +803,7 @@ TEST_CASE("In real time an agent that resumes writes the steps it slept through 
   // threads deliver it a moment later): the loop came back long after its wake-up
   net.frozen.erase(3);
   const double hold_s = net.agents.at(3)->OnResumed(net.now);
-  CHECK(hold_s == Approx(0.05));  // deadline_fraction x period_s
+  CHECK(hold_s == Approx(0.1));  // twice the step's deadline: 2 x deadline_fraction x period_s
   net.agents.at(3)->OnTimer(net.now);
   // THEN it writes nothing on the clock yet
   CHECK(net.agents.at(3)->last_written_step() == 1);
