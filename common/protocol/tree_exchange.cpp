@@ -122,23 +122,22 @@ void TreeExchange::SetMembers(std::set<AgentId> members, double now_s) {
 }
 
 void TreeExchange::OnParentLiveliness(AgentId id, bool alive, double now_s) {
-  if (!alive && place_.parent != id) return;  // only its parent's lapses (a return ends any)
-  const long undone = parent_lapses_.losses_undone();
-  const std::optional<bool> change = parent_lapses_.Report(id, alive, now_s);
-  if (alive && silent_.count(id) > 0 && given_.count(id) > 0) {
-    // A parent left for its silence is heard again, and the members still have it: it only
-    // stalled (a process frozen or starved, renewals lost). It comes back into the tree at
-    // once rather than at the end of its hold: meanwhile it took itself for what it was and
-    // every agent missed its contribution (docs/SCALING.md, "A parent heard again"). The
-    // loss counts as undone, so its next lapses are held longer.
-    if (parent_lapses_.losses_undone() == undone) parent_lapses_.NoteUndone(now_s);
-    silent_.erase(id);
-    ++parents_heard_again_;
-    NoteGraceGrown(id);
-    Rebuild(now_s);
+  if (silent_.count(id) > 0) {
+    // A parent left for its silence, heard on the watch its agent keeps in its partition: it
+    // comes back once it has stayed alive for its relay lease and the grace, while the
+    // members still have it (CheckSilence). A single message of it that a starved process
+    // reads late also says "alive", and the lease runs out again soon after: it was still
+    // frozen (docs/SCALING.md, "A parent heard again").
+    if (!alive) {
+      heard_again_.erase(id);
+    } else if (given_.count(id) > 0) {
+      heard_again_.emplace(id, now_s + EffectiveRelayLeaseS(config_) + config_.network.liveliness_grace_s);
+    }
     CheckSilence(now_s);
     return;
   }
+  if (!alive && place_.parent != id) return;  // only its parent's lapses (a return ends any)
+  const std::optional<bool> change = parent_lapses_.Report(id, alive, now_s);
   NoteGraceGrown(id);
   if (change && !*change) LeaveSilent(id, now_s);  // no grace
   CheckSilence(now_s);
@@ -167,6 +166,26 @@ void TreeExchange::LeaveSilent(AgentId parent, double now_s) {
 void TreeExchange::CheckSilence(double now_s) {
   for (AgentId parent : parent_lapses_.Due(now_s)) LeaveSilent(parent, now_s);
   bool back = false;
+  for (auto it = heard_again_.begin(); it != heard_again_.end();) {
+    if (silent_.count(it->first) == 0 || given_.count(it->first) == 0) {
+      it = heard_again_.erase(it);  // back already, or the members lost it
+      continue;
+    }
+    if (now_s < it->second) {
+      ++it;
+      continue;
+    }
+    // Alive since, and still a member: it only stalled (a process frozen or starved, or
+    // renewals lost). It comes back before the end of its hold: meanwhile it took itself
+    // for what it was and every agent missed its contribution. The loss counts as undone,
+    // so its next lapses are held longer.
+    parent_lapses_.NoteUndone(now_s);
+    NoteGraceGrown(it->first);
+    silent_.erase(it->first);
+    ++parents_heard_again_;
+    back = true;
+    it = heard_again_.erase(it);
+  }
   for (auto it = silent_.begin(); it != silent_.end();) {
     if (now_s >= it->second) {
       // Still a member when its hold ends: the parent lived, and the network lost the
@@ -531,6 +550,7 @@ std::optional<double> TreeExchange::NextDeadline() const {
   };
   if (const std::optional<double> lapse = parent_lapses_.NextDue()) sooner(*lapse);
   for (const auto& entry : silent_) sooner(entry.second);
+  for (const auto& entry : heard_again_) sooner(entry.second);
   for (StepIndex step : unflushed_) {  // each kept, with first_s set (StateOf)
     sooner(steps_.at(step).first_s + wait_s_);
   }

@@ -125,12 +125,13 @@ class TreeExchange {
   // more, this agent moves under the next member up at once and leaves the parent out of its
   // tree for silent_hold_s: every agent's membership loses a dead agent only after the
   // lease of every agent's writers, which grows with N (docs/SCALING.md, "Losing a relay").
-  // A return of a parent it left so, while the members still have it, brings the parent
-  // back into its tree at once.
+  // A parent it left so that is alive again for network.relay_lease_s plus the grace,
+  // while the members still have it, comes back into its tree then.
   void OnParentLiveliness(AgentId id, bool alive, double now_s);
-  // A parent it left for its silence stays out of its tree for silent_hold_s, or until
-  // OnParentLiveliness(parent, true): the caller keeps listening to the liveliness of the
-  // relay writers of these parents (docs/SCALING.md, "A parent heard again").
+  // A parent it left for its silence stays out of its tree for silent_hold_s, or until it
+  // has been alive again (OnParentLiveliness) for its relay lease plus the grace: the caller
+  // keeps listening to the liveliness of the relay writers of these parents (docs/SCALING.md,
+  // "A parent heard again").
   std::set<AgentId> silent_parents() const;
   // Silent parents that came back into the tree because they were heard again.
   long parents_heard_again() const { return parents_heard_again_; }
@@ -237,6 +238,8 @@ class TreeExchange {
   std::set<AgentId> given_;    // the members as last set (SetMembers)
   std::set<AgentId> members_;  // those of the tree: given_ less the silent parents
   std::map<AgentId, double> silent_;  // a parent that fell silent -> when it may come back
+  // A silent parent whose relay writer lives again -> when it comes back if it stays alive.
+  std::map<AgentId, double> heard_again_;
   long parents_heard_again_ = 0;
   BasicLapseFilter<AgentId> parent_lapses_;  // the parent's relay writer's lapses, held for the grace
   std::vector<AgentId> sorted_;

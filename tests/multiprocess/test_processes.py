@@ -1179,8 +1179,9 @@ def test_tree_frozen_root_heard_again(work, domain):
     2 s from step 40. Its children 2 and 3 leave it once its relay writer has been silent for
     the relay lease plus the grace. The members keep it (a 2 s silence is inside their
     lease), so the root resumes as the root; its children hear its relay writer again on the
-    reader they left in its partition and move back under it at once (docs/SCALING.md, "A
-    parent heard again"), not after their hold of 2 x (lease + grace), about 7 s, during which
+    reader they left in its partition and move back under it once it has stayed alive for its
+    relay lease and the grace, 0.6 s (docs/SCALING.md, "A parent heard again"), not after
+    their hold of 2 x (lease + grace), about 7 s, during which
     every agent would miss the root's contribution at every step. So from 20 steps after the
     resume every agent fuses all seven by the deadline (one short step allowed, as a loaded
     host may deliver one batch late), and from 30 steps after it they agree bit for bit."""

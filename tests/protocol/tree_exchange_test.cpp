@@ -741,8 +741,8 @@ TEST_CASE("A parent's lapse within the grace, or another relay's, moves nobody; 
   CHECK(grown.size() == 1);  // nothing undone since
 }
 
-TEST_CASE("A silent parent heard again comes back at once while the members have it; a dead one "
-          "stays out for the hold",
+TEST_CASE("A silent parent heard again comes back once it stays alive while the members have it; a "
+          "dead one stays out for the hold",
           "[protocol][tree]") {
   const deif::Config config = ConfigFor(13, 3);
   const double grace = config.network.liveliness_grace_s;
@@ -766,8 +766,22 @@ TEST_CASE("A silent parent heard again comes back at once while the members have
   child.OnTimer(1.0 + grace);
   CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{1, 2}});
   CHECK(child.silent_parents() == std::set<AgentId>{2});
-  // It resumes 2 s later, long before the hold is over: the child is back under it at once.
+  // A message of it read late says "alive" while it is still frozen, and its lease runs out
+  // again: it stays out.
+  const double settle = config.network.liveliness_lease_s + grace;  // relay_lease_s 0: the lease
+  child.OnParentLiveliness(2, true, 1.5 + grace);
+  child.OnParentLiveliness(2, false, 1.5 + grace + 0.3);
+  child.OnTimer(1.5 + grace + settle + 0.1);
+  CHECK(moves().empty());
+  CHECK(child.silent_parents() == std::set<AgentId>{2});
+  // It resumes 2 s later, long before the hold is over, and stays alive: once it has been
+  // alive for its relay lease and the grace, the child is back under it.
   child.OnParentLiveliness(2, true, 3.0);
+  REQUIRE(child.NextDeadline().has_value());
+  CHECK(*child.NextDeadline() <= 3.0 + settle);
+  child.OnTimer(3.0 + 0.5 * settle);
+  CHECK(moves().empty());
+  child.OnTimer(3.0 + settle);
   CHECK(moves() == std::vector<std::pair<AgentId, AgentId>>{{2, 0}});
   CHECK(child.place().parent == AgentId{2});
   CHECK(child.silent_parents().empty());
@@ -787,6 +801,8 @@ TEST_CASE("A silent parent heard again comes back at once while the members have
   child.SetMembers(without_2, 6.0);
   CHECK(moves().empty());  // already out of its tree
   child.OnParentLiveliness(2, true, 6.5);
+  child.OnTimer(6.5 + settle);
+  CHECK(moves().empty());
   child.OnTimer(4.0 + 2.0 * grace + hold + 1.0);
   CHECK(moves().empty());
   CHECK(child.place().parent == AgentId{1});
