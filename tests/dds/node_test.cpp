@@ -40,6 +40,35 @@ bool Within(double seconds, deif::dds::Node& waiter, const std::function<bool()>
   return true;
 }
 
+// Two parents of the tree exchange writing down into sub-partitions down.a and down.b, and a
+// child reading down.a (docs/SCALING.md), in run `run`.
+struct TwoParentsAndAChild {
+  TwoParentsAndAChild(const deif::Config& config, const std::string& run)
+      : parent_a(config, "node-test-" + run + "-a", run),
+        parent_b(config, "node-test-" + run + "-b", run),
+        child(config, "node-test-" + run + "-child", run) {
+    parent_a.SetSubPartitions(Topic::kRelayDown, "down.a", "unused");
+    parent_a.AddWriter(Topic::kRelayDown);
+    parent_b.SetSubPartitions(Topic::kRelayDown, "down.b", "unused");
+    parent_b.AddWriter(Topic::kRelayDown);
+    child.SetSubPartitions(Topic::kRelayDown, "unused", "down.a");
+    child.AddReader({Topic::kRelayDown, {}});
+    parent_a.StartLiveliness();
+    parent_b.StartLiveliness();
+  }
+  deif::dds::Node parent_a, parent_b, child;
+};
+
+// A batch sent down by relay `sender` of run `run`.
+deif::protocol::BatchMsg DownBatch(const std::string& run, deif::AgentId sender, deif::StepIndex step) {
+  deif::protocol::BatchMsg batch;
+  batch.run = deif::protocol::RunTokenOf(run);
+  batch.sender_id = sender;
+  batch.step = step;
+  batch.down = true;
+  return batch;
+}
+
 }  // namespace
 
 TEST_CASE("a removed reader is no longer matched by the peers' writers", "[dds][node]") {
@@ -159,25 +188,13 @@ TEST_CASE("a reader moved to another sub-partition matches its new writer and ke
       "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
   // A child of the tree exchange moving from parent a to parent b (docs/SCALING.md): the
   // batch of a that arrived before the move is handed out after it, and b's batches come.
-  deif::dds::Node parent_a(config, "node-test-move-a", "node_move");
-  deif::dds::Node parent_b(config, "node-test-move-b", "node_move");
-  deif::dds::Node child(config, "node-test-move-child", "node_move");
-  parent_a.SetSubPartitions(Topic::kRelayDown, "down.a", "unused");
-  parent_a.AddWriter(Topic::kRelayDown);
-  parent_b.SetSubPartitions(Topic::kRelayDown, "down.b", "unused");
-  parent_b.AddWriter(Topic::kRelayDown);
-  child.SetSubPartitions(Topic::kRelayDown, "unused", "down.a");
-  child.AddReader({Topic::kRelayDown, {}});
-  parent_a.StartLiveliness();
-  parent_b.StartLiveliness();
+  TwoParentsAndAChild nodes(config, "node_move");
+  deif::dds::Node& parent_a = nodes.parent_a;  // references, not a structured binding: the
+  deif::dds::Node& parent_b = nodes.parent_b;  // lambdas below capture them (C++17)
+  deif::dds::Node& child = nodes.child;
   // The child does not Wait() before the move, so the batch stays in its reader.
   REQUIRE(Within(10.0, parent_a, [&] { return parent_a.MatchedReaders(Topic::kRelayDown) == 1; }));
-  deif::protocol::BatchMsg batch;
-  batch.run = deif::protocol::RunTokenOf("node_move");
-  batch.sender_id = 1;
-  batch.step = 7;
-  batch.down = true;
-  parent_a.Write(batch);
+  parent_a.Write(DownBatch("node_move", 1, 7));
   REQUIRE(parent_a.WaitForAcknowledgments(10.0));  // it is in the child's reader
 
   child.MoveSubPartitions(Topic::kRelayDown, "unused", "down.b");
@@ -199,9 +216,7 @@ TEST_CASE("a reader moved to another sub-partition matches its new writer and ke
 
   REQUIRE(Within(10.0, child, [&] { return parent_b.MatchedReaders(Topic::kRelayDown) == 1; }));
   CHECK(Within(10.0, child, [&] { return parent_a.MatchedReaders(Topic::kRelayDown) == 0; }));
-  batch.sender_id = 2;
-  batch.step = 8;
-  parent_b.Write(batch);
+  parent_b.Write(DownBatch("node_move", 2, 8));
   CHECK(Within(10.0, parent_b, [&] {
     note(child.Wait(Clock::now() + std::chrono::milliseconds(20)));
     return got.size() >= 2;
@@ -216,17 +231,10 @@ TEST_CASE("a reader moved with a watch: the watch hears the old partition's writ
       "agents: {count: 3}\nnetwork: {domain_id: 178, transport: udp}\n", "node_test");
   // A child of the tree exchange leaving a parent that fell silent (docs/SCALING.md, "A
   // parent heard again"): its reader of a's partition stays as a watch.
-  deif::dds::Node parent_a(config, "node-test-watch-a", "node_watch");
-  deif::dds::Node parent_b(config, "node-test-watch-b", "node_watch");
-  deif::dds::Node child(config, "node-test-watch-child", "node_watch");
-  parent_a.SetSubPartitions(Topic::kRelayDown, "down.a", "unused");
-  parent_a.AddWriter(Topic::kRelayDown);
-  parent_b.SetSubPartitions(Topic::kRelayDown, "down.b", "unused");
-  parent_b.AddWriter(Topic::kRelayDown);
-  child.SetSubPartitions(Topic::kRelayDown, "unused", "down.a");
-  child.AddReader({Topic::kRelayDown, {}});
-  parent_a.StartLiveliness();
-  parent_b.StartLiveliness();
+  TwoParentsAndAChild nodes(config, "node_watch");
+  deif::dds::Node& parent_a = nodes.parent_a;  // as above
+  deif::dds::Node& parent_b = nodes.parent_b;
+  deif::dds::Node& child = nodes.child;
   REQUIRE(Within(10.0, child, [&] { return parent_a.MatchedReaders(Topic::kRelayDown) == 1; }));
   CHECK(child.Watches(Topic::kRelayDown) == 0);
 
@@ -238,16 +246,9 @@ TEST_CASE("a reader moved with a watch: the watch hears the old partition's writ
   // a's writer still matches the watch, and what it writes comes out nowhere.
   Within(1.0, child, [] { return false; });
   CHECK(parent_a.MatchedReaders(Topic::kRelayDown) == 1);
-  deif::protocol::BatchMsg batch;
-  batch.run = deif::protocol::RunTokenOf("node_watch");
-  batch.sender_id = 1;
-  batch.step = 7;
-  batch.down = true;
-  parent_a.Write(batch);
+  parent_a.Write(DownBatch("node_watch", 1, 7));
   REQUIRE(parent_a.WaitForAcknowledgments(10.0));  // it reached the watch
-  batch.sender_id = 2;
-  batch.step = 8;
-  parent_b.Write(batch);
+  parent_b.Write(DownBatch("node_watch", 2, 8));
   std::vector<deif::AgentId> senders;
   std::vector<deif::dds::LivelinessChange> changes;
   const auto note = [&](const std::vector<deif::dds::Event>& events) {
