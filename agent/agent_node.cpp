@@ -16,8 +16,8 @@ namespace deif::agent {
 
 namespace {
 
-constexpr double kMaxWaitS = 0.5;
-constexpr double kResumedAfterPeriods = 3.0;  // a loop back this many periods late was away (OnResumed)  // the loop wakes at least this often (stop requests)
+constexpr double kMaxWaitS = 0.5;  // the loop wakes at least this often (stop requests)
+constexpr double kResumedAfterPeriods = 3.0;  // a loop back this many periods late was away (OnResumed)
 // How often it looks at every peer's process (docs/PROTOCOL.md, "A process that ended"): to
 // see each alive once; and at those the target's roll call left out (the target looks
 // often, for everyone).
@@ -510,8 +510,8 @@ void AgentNode::ExecuteRelay(std::vector<protocol::TreeAction> actions) {
     } else if (auto* deliver = std::get_if<act::Deliver>(&action)) {
       deliveries.emplace_back(std::move(deliver->item.msg), deliver->item.origin);  // after the sends
     } else if (const auto* reparent = std::get_if<act::Reparent>(&action)) {
-      // A parent left for its silence is still watched where it was: its relay writer's
-      // return brings it back at once (docs/SCALING.md, "A parent heard again").
+      // A parent left for its silence is still watched where it was: its relay writer alive
+      // again brings it back (docs/SCALING.md, "A parent heard again").
       bool watch = false;
       if (reparent->silent) {
         for (const auto& [writer, parent] : parent_writers_) {

@@ -178,8 +178,10 @@ void TreeExchange::CheckSilence(double now_s) {
     // Alive since, and still a member: it only stalled (a process frozen or starved, or
     // renewals lost). It comes back before the end of its hold: meanwhile it took itself
     // for what it was and every agent missed its contribution. The loss counts as undone,
-    // so its next lapses are held longer.
-    parent_lapses_.NoteUndone(now_s);
+    // so its next lapses are held longer (once: the filter forgets the loss it held).
+    const long undone = parent_lapses_.losses_undone();
+    parent_lapses_.Report(it->first, true, now_s);
+    if (parent_lapses_.losses_undone() == undone) parent_lapses_.NoteUndone(now_s);
     NoteGraceGrown(it->first);
     silent_.erase(it->first);
     ++parents_heard_again_;
