@@ -1194,6 +1194,16 @@ namespace {
 // Takes every sample waiting in the node's reader of `topic` (with TakeAll, below).
 void TakeTopic(Node::Impl& d, Topic topic, std::vector<Event>& out);
 
+// A subscriber of its own in partition `partition` (a reader that must not share its
+// partition with the node's other readers).
+fdds::Subscriber* SubscriberIn(Node::Impl& d, const std::string& partition) {
+  fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
+  qos.partition().push_back(partition.c_str());
+  fdds::Subscriber* subscriber = d.participant->create_subscriber(qos);
+  if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+  return subscriber;
+}
+
 // Makes the node's reader of `topic` in `subscriber`, woken by the node's Wait().
 void MakeReader(Node::Impl& d, Topic topic, fdds::Subscriber* subscriber, fdds::TopicDescription* description,
                 const fdds::DataReaderQos& qos, LivelinessListener* listener) {
@@ -1313,11 +1323,7 @@ void Node::MoveSubPartitions(Topic topic, const std::string& writer_suffix, cons
   old->get_statuscondition().set_enabled_statuses(fdds::StatusMask::none());
   d.readers.erase(topic);
   d.watches.emplace(topic, old);
-  fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
-  const std::string partition = "deif." + d.run_name + "." + reader_suffix;
-  qos.partition().push_back(partition.c_str());
-  fdds::Subscriber* fresh = d.participant->create_subscriber(qos);
-  if (fresh == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+  fdds::Subscriber* fresh = SubscriberIn(d, "deif." + d.run_name + "." + reader_suffix);
   MakeReader(d, topic, fresh, const_cast<fdds::TopicDescription*>(old->get_topicdescription()), old->get_qos(),
              d.listeners.at(topic).get());
 }
@@ -1389,17 +1395,9 @@ void Node::AddReader(const ReaderSpec& spec) {
     // Only its own agent's partition (docs/PROTOCOL.md, "Ranges"): the target's writers of
     // the other agents' ranges do not match it, so they send it nothing, not even news of
     // samples the filter would drop. The filter stays, against anyone else's writer there.
-    fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
-    const std::string partition = RangePartition(d.run_name, *spec.only_id);
-    qos.partition().push_back(partition.c_str());
-    subscriber = d.participant->create_subscriber(qos);
-    if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+    subscriber = SubscriberIn(d, RangePartition(d.run_name, *spec.only_id));
   } else if (auto sub = d.reader_sub_partitions.find(topic); sub != d.reader_sub_partitions.end()) {
-    fdds::SubscriberQos qos = fdds::SUBSCRIBER_QOS_DEFAULT;
-    const std::string partition = "deif." + d.run_name + "." + sub->second;
-    qos.partition().push_back(partition.c_str());
-    subscriber = d.participant->create_subscriber(qos);
-    if (subscriber == nullptr) throw std::runtime_error("cannot create the subscriber of " + partition);
+    subscriber = SubscriberIn(d, "deif." + d.run_name + "." + sub->second);
   }
   MakeReader(d, topic, subscriber, description, ReaderQos(topic, d.config), listener.get());
   d.listeners[topic] = std::move(listener);

@@ -159,10 +159,11 @@ class AgentProtocol {
   // (frozen or starved). What reached its host meanwhile is still in its sockets, and its
   // readers get it only in the moments that follow. In real time no step is written at its
   // deadline, and none opened on the clock, before kResumeShare x the step's deadline from
-  // now (with one deadline, a relay frozen at 64 agents still wrote 4 of 20 such rows with
-  // 3 contributions of 64; a host loaded by other work can take longer still), so that the steps it slept through are written with what did arrive for them
-  // (docs/PROTOCOL.md, "Rejoining"). Returns how long it holds them (0 in lock-step, where a
-  // step waits for its members anyway).
+  // now, so that the steps it slept through are written with what did arrive for them (with
+  // one deadline, a relay frozen at 64 agents still wrote 4 of 20 such rows with 3
+  // contributions of 64; a host loaded by other work can take longer still; docs/PROTOCOL.md,
+  // "Rejoining"). Returns how long it holds them (0 in lock-step, where a step waits for its
+  // members anyway).
   double OnResumed(double now_s);
   static constexpr double kResumeShare = 2.0;
   void OnTimer(double now_s);
